@@ -1,0 +1,127 @@
+"""Pattern families for the LCD: drive values in [0, 1], shaped (P, 3, h, w).
+
+Cell coordinates: u = (column + 1/2) / w runs along the LCD's columns (corner 0 -> 1), v = (row + 1/2) / h
+along its rows (corner 0 -> 3); see :mod:`mitsvbrdf.rig`. "x" and "y" gradients below are
+gradients in u and v.
+
+Families:
+    uniform      one constant pattern (default white).
+    monograd     5 monochrome gradients (Ghosh et al. 2010 style): constant, u, v, 1-u, 1-v.
+    colorgrad    5 coloured gradients (Fyffe 2015 style): white, RGB = (u, v, z), its complement
+                 (1-u, 1-v, 1-z), and the channel-rotated pair (v, z, u), (1-v, 1-z, 1-u), where
+                 z = 1 - (x^2 + y^2) / 2 with x = 2u - 1, y = 2v - 1 is the planar stand-in for the
+                 spherical z gradient (1 at the LCD centre, 0 at its corners). The rotated pair makes
+                 every channel see every gradient, so the group has the 5 patterns a capture uses.
+    step_edges   n step edges for re-rendering evaluation: half the patterns switch from 0 to 1
+                 along u at evenly spaced positions, the other half along v.
+    random       i.i.d. uniform drive values from a seeded generator.
+"""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+import torch
+from torch import Tensor
+
+from .errors import PatternError
+
+FAMILIES = ("uniform", "monograd", "colorgrad", "step_edges", "random")
+
+
+def _uv(h: int, w: int) -> tuple[Tensor, Tensor]:
+    v, u = torch.meshgrid((torch.arange(h) + 0.5) / h, (torch.arange(w) + 0.5) / w, indexing="ij")
+    return u, v
+
+
+def _grey(t: Tensor) -> Tensor:
+    return t.expand(3, *t.shape)
+
+
+def uniform(h: int = 32, w: int = 32, value: float = 1.0) -> Tensor:
+    """(1, 3, h, w) constant pattern."""
+    if not 0.0 <= value <= 1.0:
+        raise PatternError(f"uniform pattern value must lie in [0, 1], got {value}")
+    return torch.full((1, 3, h, w), float(value))
+
+
+def monograd(h: int = 32, w: int = 32) -> Tensor:
+    """(5, 3, h, w) monochrome gradients: constant, u, v, 1 - u, 1 - v."""
+    u, v = _uv(h, w)
+    return torch.stack([_grey(torch.ones_like(u)), _grey(u), _grey(v), _grey(1 - u), _grey(1 - v)])
+
+
+def colorgrad(h: int = 32, w: int = 32) -> Tensor:
+    """(5, 3, h, w) coloured gradients: white, (u, v, z), complement, (v, z, u), complement."""
+    u, v = _uv(h, w)
+    z = 1.0 - ((2 * u - 1) ** 2 + (2 * v - 1) ** 2) / 2
+    g = torch.stack([u, v, z])
+    r = torch.stack([v, z, u])
+    return torch.stack([torch.ones(3, h, w), g, 1 - g, r, 1 - r])
+
+
+def step_edges(h: int = 32, w: int = 32, n: int = 10) -> Tensor:
+    """(n, 3, h, w) white/black step edges: ceil(n/2) along u, the rest along v, edges evenly spaced."""
+    if n < 1:
+        raise PatternError(f"step_edges needs n >= 1, got {n}")
+    u, v = _uv(h, w)
+    nu = (n + 1) // 2
+    nv = n - nu
+    out = [_grey((u > (k + 1) / (nu + 1)).float()) for k in range(nu)]
+    out += [_grey((v > (k + 1) / (nv + 1)).float()) for k in range(nv)]
+    return torch.stack(out)
+
+
+def random(h: int = 32, w: int = 32, n: int = 5, seed: int = 0) -> Tensor:
+    """(n, 3, h, w) i.i.d. uniform drive values; the same seed gives the same patterns."""
+    g = torch.Generator().manual_seed(int(seed))
+    return torch.rand((n, 3, h, w), generator=g)
+
+
+def pattern_family(name: str, h: int = 32, w: int = 32, **kwargs) -> Tensor:
+    """Patterns of a named family (see the module docstring) on an h x w LCD."""
+    builders = {"uniform": uniform, "monograd": monograd, "colorgrad": colorgrad,
+                "step_edges": step_edges, "random": random}
+    if name not in builders:
+        raise PatternError(f"unknown pattern family {name!r}; known: {', '.join(FAMILIES)}")
+    return builders[name](h, w, **kwargs)
+
+
+def load_patterns(name_or_path: str | Path, h: int = 32, w: int = 32) -> Tensor:
+    """A family name, or a file: ``.npy``/``.pt`` holding (P, 3, h, w) (or (3, h, w)) drive values,
+    or an image (PNG/EXR) of P tiles of h x w cells side by side (drive values as stored)."""
+    s = str(name_or_path)
+    if s in FAMILIES:
+        return pattern_family(s, h, w)
+    path = Path(s)
+    if not path.exists():
+        raise PatternError(f"{s!r} is neither a pattern family ({', '.join(FAMILIES)}) nor an existing file")
+    suffix = path.suffix.lower()
+    if suffix == ".npy":
+        try:
+            t = torch.from_numpy(np.load(path, allow_pickle=False)).float()
+        except (ValueError, OSError) as e:
+            raise PatternError(f"{path}: cannot read patterns from .npy ({e})") from e
+    elif suffix == ".pt":
+        t = torch.load(path, weights_only=True)
+        if not isinstance(t, Tensor):
+            raise PatternError(f"{path}: expected a tensor, found {type(t).__name__}")
+        t = t.float()
+    else:
+        from .imageio import read_image
+
+        img = torch.from_numpy(read_image(path)).float()  # (rows, cols, C)
+        if img.shape[-1] == 1:
+            img = img.expand(*img.shape[:2], 3)
+        img = img[..., :3]
+        rows, cols = img.shape[:2]
+        if rows != h or cols % w != 0:
+            raise PatternError(f"{path}: a pattern strip must be {h} rows by a multiple of {w} "
+                               f"columns (P tiles of {h}x{w} cells), got {rows}x{cols}")
+        t = img.reshape(h, cols // w, w, 3).permute(1, 3, 0, 2)
+    if t.ndim == 3:
+        t = t.unsqueeze(0)
+    if t.ndim != 4 or tuple(t.shape[1:]) != (3, h, w):
+        raise PatternError(f"{path}: patterns must be (P, 3, {h}, {w}), got {tuple(t.shape)}")
+    return t.contiguous()

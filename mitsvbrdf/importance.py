@@ -18,20 +18,14 @@ from __future__ import annotations
 import torch
 from torch import Tensor
 
-from .brdf import ggx_ndf, roughness_to_alpha
-from .render.quadrature import QuadratureSettings, cell_kernels, chunk_size
-from .render.reference import vndf_pdf
+from .brdf import roughness_to_alpha
+from .render.quadrature import LocalDirections, QuadratureSettings, cell_kernels, chunk_size
 from .rig import Rig
 
 
-def projected_ndf(n: Tensor, wi: Tensor, wo: Tensor, alpha: Tensor):
+def projected_ndf(d: LocalDirections):
     """Per-solid-angle density of w_i under half-vectors drawn from D(h)(h.n): D (h.n) / (4 h.w_o)."""
-    h = wi + wo
-    h = h / torch.linalg.vector_norm(h, dim=-1, keepdim=True).clamp_min(1e-12)
-    cos_h = (n * h).sum(-1, keepdim=True)
-    sin2 = torch.linalg.vector_norm(torch.linalg.cross(n, h, dim=-1), dim=-1, keepdim=True) ** 2
-    d = ggx_ndf(alpha, cos_h, sin2)
-    return None, d * cos_h.clamp_min(0.0) / (4.0 * (wo * h).sum(-1, keepdim=True).clamp_min(1e-6))
+    return [], [d.ndf() * d.cos_h.clamp_min(0.0) / (4.0 * d.o_dot_h.clamp_min(1e-6))]
 
 
 def texel_importance(normal: Tensor, roughness: Tensor, rig: Rig, *,
@@ -56,7 +50,7 @@ def texel_importance(normal: Tensor, roughness: Tensor, rig: Rig, *,
     lcd = rig.lcd_geometry(dev, dt)
     step = chunk_size(settings, lcd.cells[0] * lcd.cells[1])
     rows = [cell_kernels(x[i:i + step], n[i:i + step], wo[i:i + step], alpha[i:i + step], lcd,
-                         projected_ndf, vndf_pdf, settings)[:, 0]
+                         projected_ndf, settings)[:, 0]
             for i in range(0, x.shape[0], step)]
     return torch.cat(rows, 0)
 

@@ -49,7 +49,7 @@ def flat_diffuse_kernel(rig: Rig, resolution: tuple[int, int], *, device=None,
         step = chunk_size(settings, lcd.cells[0] * lcd.cells[1])
         with torch.no_grad():
             k = torch.cat([cell_kernels(x[i:i + step], n[i:i + step], wo[i:i + step], alpha[i:i + step],
-                                        lcd, diffuse_integrand, None, settings, display)[:, 0]
+                                        lcd, diffuse_integrand, settings, display)[:, 0]
                            for i in range(0, x.shape[0], step)], 0)
         if len(cache) >= 4:
             cache.pop(next(iter(cache)))

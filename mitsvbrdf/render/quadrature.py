@@ -42,13 +42,43 @@ import numpy as np
 import torch
 from torch import Tensor
 
-from ..brdf import sample_vndf_local, tangent_frame
+from ..brdf import ggx_ndf, sample_vndf_local, smith_ggx_g1, tangent_frame
 from ..rig import DisplayModel, LcdGeometry
 
-#: Integrand signature: (n, wi, wo, alpha) with xyz in the last dim (alpha with a trailing 1)
-#: -> (smooth, peaked): tensors (..., Ks) and (..., Kp) or None. Smooth channels use the light
-#: rule only; peaked channels use both rules with MIS.
-Integrand = Callable[[Tensor, Tensor, Tensor, Tensor], tuple[Tensor | None, Tensor | None]]
+
+@dataclass(frozen=True)
+class LocalDirections:
+    """Cosines of a light direction w_i in the shading frame, as integrands need them.
+
+    All fields broadcast to one shape (pixels x points); n is the shading normal and
+    h = normalize(w_i + w_o). ``sin2_h = |n x h|^2`` is computed from tangent-plane components,
+    without the cancellation of ``1 - cos^2`` for tiny alpha.
+    """
+
+    cos_i: Tensor  # n . w_i
+    cos_o: Tensor  # n . w_o
+    cos_h: Tensor  # n . h
+    sin2_h: Tensor  # |n x h|^2
+    o_dot_h: Tensor  # w_o . h
+    alpha: Tensor  # GGX alpha
+
+    @classmethod
+    def from_local(cls, wi: tuple[Tensor, Tensor, Tensor], wo: tuple[Tensor, Tensor, Tensor],
+                   alpha: Tensor) -> "LocalDirections":
+        hx, hy, hz = wi[0] + wo[0], wi[1] + wo[1], wi[2] + wo[2]
+        inv = torch.rsqrt((hx * hx + hy * hy + hz * hz).clamp_min(1e-24))
+        hx, hy, hz = hx * inv, hy * inv, hz * inv
+        return cls(cos_i=wi[2], cos_o=wo[2], cos_h=hz, sin2_h=hx * hx + hy * hy,
+                   o_dot_h=wo[0] * hx + wo[1] * hy + wo[2] * hz, alpha=alpha)
+
+    def ndf(self) -> Tensor:
+        """GGX D(h)."""
+        return ggx_ndf(self.alpha, self.cos_h, self.sin2_h)
+
+
+#: Integrand: LocalDirections -> (smooth channels, peaked channels), lists of tensors shaped like
+#: ``cos_i``. Smooth channels use the light rule only; peaked channels both rules.
+Integrand = Callable[[LocalDirections], tuple[list[Tensor], list[Tensor]]]
 
 
 @dataclass(frozen=True)
@@ -57,7 +87,8 @@ class QuadratureSettings:
 
     Attributes:
         cell_order: q, Gauss-Legendre points per cell along each axis (q^2 per cell).
-        lobe_grid: m, visible-normal samples per pixel along each axis (m^2 per pixel).
+        lobe_grid: m, visible-normal samples per pixel along each axis (m^2 per pixel);
+            0 switches the lobe rule off.
         window: radius, in light-point spacings, of the region around a lobe's peak that the
             lobe rule integrates (see :func:`lobe_share`).
         max_elements: bound on pixels x points evaluated at once (memory vs. overhead).
@@ -69,8 +100,8 @@ class QuadratureSettings:
     max_elements: int = 1 << 21
 
     def __post_init__(self):
-        if self.cell_order < 1 or self.lobe_grid < 0:
-            raise ValueError(f"need cell_order >= 1 and lobe_grid >= 0, got {self}")
+        if self.cell_order < 1 or self.lobe_grid < 0 or self.window <= 0:
+            raise ValueError(f"need cell_order >= 1, lobe_grid >= 0, window > 0, got {self}")
 
     def denser(self) -> "QuadratureSettings":
         """4x the points of both rules (2x per axis): the convergence check of the benchmark."""
@@ -107,7 +138,13 @@ def lobe_grid(m: int, device=None, dtype=torch.float32) -> tuple[Tensor, Tensor]
     return u1.to(dtype), u2.to(dtype)
 
 
-def lobe_share(n: Tensor, wi: Tensor, wo: Tensor, alpha: Tensor, omega: Tensor, window: float) -> Tensor:
+def vndf_pdf(d: LocalDirections, ndf: Tensor) -> Tensor:
+    """Solid-angle density of the lobe rule's directions: G1_smith(w_o) D(h) / (4 n.w_o)."""
+    pdf = smith_ggx_g1(d.cos_o, d.alpha) * ndf / (4.0 * d.cos_o.clamp_min(1e-12))
+    return torch.where(d.cos_o > 0, pdf, torch.zeros_like(pdf))
+
+
+def lobe_share(d: LocalDirections, omega: Tensor, window: float) -> Tensor:
     """Weight w_H in [0, 1] of the lobe rule at w_i; the light rule gets 1 - w_H.
 
     The light rule resolves the integrand where it varies slowly on the scale of its point
@@ -121,24 +158,20 @@ def lobe_share(n: Tensor, wi: Tensor, wo: Tensor, alpha: Tensor, omega: Tensor, 
     For rough lobes l >> spacing everywhere and w_H ~ 0; for near-mirror lobes the lobe rule owns
     the unresolvable core and the light rule the smooth tails.
     """
-    h = wi + wo
-    h = h / torch.linalg.vector_norm(h, dim=-1, keepdim=True).clamp_min(1e-12)
-    sin2 = torch.linalg.vector_norm(torch.linalg.cross(n, h, dim=-1), dim=-1, keepdim=True) ** 2
-    omega_h = omega / (4.0 * (wo * h).sum(-1, keepdim=True).clamp_min(1e-6))
-    ratio = (alpha * alpha + sin2) / (window * window * omega_h).clamp_min(1e-30)
+    omega_h = omega / (4.0 * d.o_dot_h.clamp_min(1e-6))
+    ratio = (d.alpha * d.alpha + d.sin2_h) / (window * window * omega_h).clamp_min(1e-30)
     return 1.0 / (1.0 + ratio * ratio)
 
 
-def _emission(lcd: LcdGeometry, display: DisplayModel | None, x: Tensor, y: Tensor,
-              uv: Tensor) -> tuple[Tensor, Tensor, Tensor | None]:
-    """Direction x -> y (..., 3), the area-to-solid-angle factor J = cos(theta_emit) / d^2
-    (..., 1), and the emission decay (..., 1) or None when the scene has none."""
-    d = y - x
-    dist2 = (d * d).sum(-1, keepdim=True)
-    wi = d / dist2.sqrt()
-    cos_e = (-(wi * lcd.normal).sum(-1, keepdim=True)).clamp_min(0.0)
-    decay = display.decay(uv, cos_e[..., 0]) if display is not None else None
-    return wi, cos_e / dist2, None if decay is None else decay.unsqueeze(-1)
+class _Frame:
+    """Per-pixel shading frames (t, b, n) and the view direction in them; all (N, 3) / (N,)."""
+
+    def __init__(self, x: Tensor, n: Tensor, wo: Tensor):
+        self.x, self.n = x, n
+        self.t, self.b = tangent_frame(n)
+        self.m = torch.stack([self.t, self.b, n], 1)  # (N, 3, 3) rows = frame axes
+        self.wo = tuple((self.m @ wo[:, :, None])[:, k, 0] for k in range(3))
+        self.front = self.wo[2] > 0
 
 
 def cell_kernels(
@@ -148,7 +181,6 @@ def cell_kernels(
     alpha: Tensor,
     lcd: LcdGeometry,
     integrand: Integrand,
-    pdf: Callable[[Tensor, Tensor, Tensor, Tensor], Tensor] | None,
     settings: QuadratureSettings,
     display: DisplayModel | None = None,
 ) -> Tensor:
@@ -159,80 +191,86 @@ def cell_kernels(
         alpha: (N,) GGX alpha (>= ALPHA_MIN).
         lcd: the light; display: its display model (only the decay is used here), or None.
         integrand: see :data:`Integrand`.
-        pdf: solid-angle density of the lobe rule, ``pdf(n, wi, wo, alpha) -> (..., 1)`` matching
-            the visible-normal warp; None disables the lobe rule (light rule only).
         settings: quadrature orders.
     Returns:
-        (N, Ks + Kp, C) kernels, C = h * w cells in row-major order.
+        (N, K, C) kernels, K = smooth then peaked channels, C = h * w cells in row-major order.
     """
+    N = x.shape[0]
     q2 = settings.cell_order ** 2
     uv, area = light_points(lcd, settings.cell_order)  # (C, q2, 2), (C, q2)
     C = uv.shape[0]
-    y = lcd.point(uv).reshape(1, C * q2, 3)
-    uvf = uv.reshape(1, C * q2, 2)
+    y = lcd.point(uv).reshape(C * q2, 3)
     a_cell = lcd.area / C
-    xe, ne, woe, ae = x[:, None], n[:, None], wo[:, None], alpha[:, None, None]
+    fr = _Frame(x, n, wo)
 
-    # Light rule.
-    wi, jac, decay = _emission(lcd, display, xe, y, uvf)
-    weight = jac if decay is None else jac * decay
-    smooth, peaked = integrand(ne, wi, woe, ae)
-    parts = []
-    if smooth is not None:
-        parts.append(smooth * weight)
-    if peaked is not None:
-        if pdf is not None and settings.lobe_grid > 0:
-            w_l = 1.0 - lobe_share(ne, wi, woe, ae, a_cell * jac / q2, settings.window)
-            parts.append(peaked * (weight * w_l))
-        else:
-            parts.append(peaked * weight)
-    k = torch.cat(parts, dim=-1)  # (N, C*q2, K)
-    kernels = (k.reshape(x.shape[0], C, q2, -1) * area[None, :, :, None]).sum(2).transpose(1, 2)
-
-    if peaked is None or pdf is None or settings.lobe_grid == 0:
-        return kernels.contiguous()
-    lobe = _lobe_rule(x, n, wo, alpha, lcd, integrand, pdf, settings, display, a_cell, q2)
-    ks = 0 if smooth is None else smooth.shape[-1]
+    # Light rule: every direction from the frame projections of y - x (matmuls, no (N, M, 3) tensors).
+    proj = torch.einsum("mk,nak->nam", y, fr.m) - (fr.m @ x[:, :, None])  # (N, 3, M)
+    inv = torch.rsqrt((proj * proj).sum(1).clamp_min(1e-24))  # 1 / distance, (N, M)
+    wi = (proj[:, 0] * inv, proj[:, 1] * inv, proj[:, 2] * inv)
+    cos_e = ((x @ lcd.normal)[:, None] - y @ lcd.normal) * inv  # -(n_l . w_i)
+    jac = cos_e.clamp_min(0.0) * inv * inv  # solid angle per unit LCD area
+    wo_e = tuple(c[:, None] for c in fr.wo)
+    dirs = LocalDirections.from_local(wi, wo_e, alpha[:, None])
+    weight = jac
+    if display is not None:
+        decay = display.decay(uv.reshape(1, C * q2, 2), cos_e)
+        if decay is not None:
+            weight = jac * decay
+    smooth, peaked = integrand(dirs)
+    use_lobe = bool(peaked) and settings.lobe_grid > 0
+    if use_lobe:
+        w_light = weight * (1.0 - lobe_share(dirs, a_cell * jac / q2, settings.window))
+    channels = [g * weight for g in smooth] + [g * (w_light if use_lobe else weight) for g in peaked]
+    kernels = torch.stack([torch.einsum("ncq,cq->nc", g.reshape(N, C, q2), area) for g in channels], 1)
+    if not use_lobe:
+        return kernels
+    lobe = _lobe_rule(fr, alpha, lcd, integrand, settings, display, a_cell, q2)
+    ks = len(smooth)
     return torch.cat([kernels[:, :ks], kernels[:, ks:] + lobe], dim=1)
 
 
-def _lobe_rule(x, n, wo, alpha, lcd, integrand, pdf, settings, display, a_cell, q2) -> Tensor:
-    N = x.shape[0]
+def _lobe_rule(fr: _Frame, alpha: Tensor, lcd: LcdGeometry, integrand: Integrand,
+               settings: QuadratureSettings, display: DisplayModel | None, a_cell: Tensor,
+               q2: int) -> Tensor:
+    N = fr.x.shape[0]
     h, w = lcd.cells
     m2 = settings.lobe_grid ** 2
-    t, b = tangent_frame(n)
-    wo_l = torch.stack([(wo * t).sum(-1), (wo * b).sum(-1), (wo * n).sum(-1)], -1)
-    front = wo_l[:, 2] > 0
+    dt, dev = fr.x.dtype, fr.x.device
     # The warp needs a view above the shading horizon; elsewhere the BRDF is zero anyway.
-    wo_safe = torch.where(front[:, None], wo_l, torch.tensor([0.0, 0.0, 1.0], dtype=x.dtype, device=x.device))
-    u1, u2 = lobe_grid(settings.lobe_grid, x.device, x.dtype)
+    wo_l = torch.stack(fr.wo, -1)
+    wo_safe = torch.where(fr.front[:, None], wo_l, torch.tensor([0.0, 0.0, 1.0], dtype=dt, device=dev))
+    u1, u2 = lobe_grid(settings.lobe_grid, dev, dt)
     hl = sample_vndf_local(wo_safe[:, None, :], alpha[:, None], u1[None], u2[None])  # (N, S, 3)
     wil = 2.0 * (wo_safe[:, None] * hl).sum(-1, keepdim=True) * hl - wo_safe[:, None]
-    wi = wil[..., :1] * t[:, None] + wil[..., 1:2] * b[:, None] + wil[..., 2:] * n[:, None]
-    wi = wi / torch.linalg.vector_norm(wi, dim=-1, keepdim=True).clamp_min(1e-12)
+    wil = wil * torch.rsqrt((wil * wil).sum(-1, keepdim=True).clamp_min(1e-24))
+    wi = wil @ fr.m  # local -> world, (N, S, 3)
 
-    # Ray x + s wi against the LCD plane.
-    nl_ = lcd.normal
-    denom = (wi * nl_).sum(-1)  # < 0 when heading towards the emitting side
-    dist = ((lcd.origin - x) * nl_).sum(-1, keepdim=True) / torch.where(denom < -1e-9, denom, -torch.ones_like(denom))
-    hit = x[:, None] + dist[..., None] * wi
-    rel = hit - lcd.origin
-    u = (rel * lcd.edge_u).sum(-1) / (lcd.edge_u * lcd.edge_u).sum()
-    v = (rel * lcd.edge_v).sum(-1) / (lcd.edge_v * lcd.edge_v).sum()
-    inside = (denom < -1e-9) & (dist > 0) & (u >= 0) & (u < 1) & (v >= 0) & (v < 1) & front[:, None]
+    # Ray x + s wi against the LCD plane (its normal faces the sample: denom < 0 on approach).
+    denom = wi @ lcd.normal
+    towards = denom < -1e-9
+    dist = ((lcd.origin - fr.x) @ lcd.normal)[:, None] / torch.where(towards, denom, -torch.ones_like(denom))
+    rel = fr.x[:, None] + dist[..., None] * wi - lcd.origin
+    u = rel @ lcd.edge_u / (lcd.edge_u @ lcd.edge_u)
+    v = rel @ lcd.edge_v / (lcd.edge_v @ lcd.edge_v)
+    inside = towards & (dist > 0) & (u >= 0) & (u < 1) & (v >= 0) & (v < 1) & fr.front[:, None]
     cell = (v.clamp(0, 1 - 1e-7) * h).long() * w + (u.clamp(0, 1 - 1e-7) * w).long()
+    cos_e = -denom
+    jac = cos_e.clamp_min(0.0) / (dist * dist).clamp_min(1e-24)
 
-    _, jac, decay = _emission(lcd, display, x[:, None], hit, torch.stack([u, v], -1))
-    ne, woe, ae = n[:, None].expand_as(wi), wo[:, None].expand_as(wi), alpha[:, None, None]
-    _, peaked = integrand(ne, wi, woe, ae)
-    w_h = lobe_share(ne, wi, woe, ae, a_cell * jac / q2, settings.window)
-    contrib = peaked * (w_h / (m2 * pdf(ne, wi, woe, ae)).clamp_min(1e-30))
-    if decay is not None:
-        contrib = contrib * decay
-    contrib = torch.where(inside[..., None], contrib, torch.zeros_like(contrib))
-    out = torch.zeros(N, peaked.shape[-1], h * w, dtype=x.dtype, device=x.device)
+    wo_e = tuple(c[:, None] for c in fr.wo)
+    dirs = LocalDirections.from_local((wil[..., 0], wil[..., 1], wil[..., 2]), wo_e, alpha[:, None])
+    _, peaked = integrand(dirs)
+    share = lobe_share(dirs, a_cell * jac / q2, settings.window)
+    scale = share / (m2 * vndf_pdf(dirs, dirs.ndf())).clamp_min(1e-30)
+    if display is not None:
+        decay = display.decay(torch.stack([u, v], -1), cos_e)
+        if decay is not None:
+            scale = scale * decay
+    scale = torch.where(inside, scale, torch.zeros_like(scale))
+    contrib = torch.stack([g * scale for g in peaked], 1)  # (N, Kp, S)
+    out = torch.zeros(N, len(peaked), h * w, dtype=dt, device=dev)
     idx = torch.where(inside, cell, torch.zeros_like(cell))
-    out.scatter_add_(2, idx[:, None, :].expand(-1, peaked.shape[-1], -1), contrib.transpose(1, 2))
+    out.scatter_add_(2, idx[:, None, :].expand(-1, len(peaked), -1), contrib)
     return out
 
 
@@ -240,5 +278,3 @@ def chunk_size(settings: QuadratureSettings, cells: int) -> int:
     """Pixels per chunk so that pixels x light points stays below ``settings.max_elements``."""
     pts = cells * settings.cell_order ** 2 + settings.lobe_grid ** 2
     return max(1, settings.max_elements // pts)
-
-

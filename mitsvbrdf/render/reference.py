@@ -24,22 +24,26 @@ import torch
 import torch.utils.checkpoint
 from torch import Tensor
 
-from ..brdf import roughness_to_alpha, smith_ggx_g1, specular_terms, ggx_ndf
+from ..brdf import roughness_to_alpha, schlick_weight
 from ..rig import Rig
-from .quadrature import QuadratureSettings, cell_kernels, chunk_size
+from .quadrature import LocalDirections, QuadratureSettings, cell_kernels, chunk_size
 
 LOBES = ("both", "diffuse", "specular")
 
 
-def _dot(a: Tensor, b: Tensor) -> Tensor:
-    return (a * b).sum(-1, keepdim=True)
-
-
-def diffuse_integrand(n: Tensor, wi: Tensor, wo: Tensor, alpha: Tensor):
+def diffuse_integrand(d: LocalDirections):
     """(n.w_i)^+ / pi where both directions are above the shading horizon (one smooth channel)."""
-    nl, nv = _dot(n, wi), _dot(n, wo)
-    g = torch.where((nl > 0) & (nv > 0), nl / math.pi, torch.zeros_like(nl))
-    return g, None
+    g = torch.where((d.cos_i > 0) & (d.cos_o > 0), d.cos_i / math.pi, torch.zeros_like(d.cos_i))
+    return [g], []
+
+
+def specular_cosine(d: LocalDirections) -> Tensor:
+    """D G / (4 n.l n.v) (n.l) in the stable form D (n.l) / (4 (n.l(1-k)+k)(n.v(1-k)+k)); the
+    same algebra as :func:`mitsvbrdf.brdf.specular_terms`."""
+    k = 0.5 * d.alpha
+    nl, nv = d.cos_i.clamp_min(0.0), d.cos_o.clamp_min(0.0)
+    f = d.ndf() * nl / (4.0 * (nl * (1.0 - k) + k) * (nv * (1.0 - k) + k))
+    return torch.where((d.cos_i > 0) & (d.cos_o > 0), f, torch.zeros_like(f))
 
 
 def make_brdf_integrand(lobes: str):
@@ -47,27 +51,16 @@ def make_brdf_integrand(lobes: str):
     if lobes not in LOBES:
         raise ValueError(f"lobes must be one of {LOBES}, got {lobes!r}")
 
-    def integrand(n, wi, wo, alpha):
-        smooth = diffuse_integrand(n, wi, wo, alpha)[0] if lobes != "specular" else None
-        peaked = None
+    def integrand(d: LocalDirections):
+        smooth = diffuse_integrand(d)[0] if lobes != "specular" else []
+        peaked = []
         if lobes != "diffuse":
-            fcos, s, _ = specular_terms(n, wi, wo, alpha)
-            peaked = torch.cat([fcos * (1.0 - s), fcos * s], dim=-1)
+            f = specular_cosine(d)
+            s = schlick_weight(d.o_dot_h)
+            peaked = [f * (1.0 - s), f * s]
         return smooth, peaked
 
     return integrand
-
-
-def vndf_pdf(n: Tensor, wi: Tensor, wo: Tensor, alpha: Tensor) -> Tensor:
-    """Solid-angle density of the lobe rule at w_i: G1_smith(w_o) D(h) / (4 n.w_o)."""
-    h = wi + wo
-    h = h / torch.linalg.vector_norm(h, dim=-1, keepdim=True).clamp_min(1e-12)
-    cos_h = _dot(n, h)
-    sin2 = torch.linalg.vector_norm(torch.linalg.cross(n, h, dim=-1), dim=-1, keepdim=True) ** 2
-    d = ggx_ndf(alpha, cos_h, sin2)
-    nv = _dot(n, wo)
-    return torch.where(nv > 0, smith_ggx_g1(nv, alpha) * d / (4.0 * nv.clamp_min(1e-12)),
-                       torch.zeros_like(d))
 
 
 def _pixels(t: Tensor) -> Tensor:
@@ -117,7 +110,7 @@ def render_reference(
 
     def shade(x, wo, n, rough, kd, ks, rad):
         alpha = roughness_to_alpha(rough[:, 0])
-        k = cell_kernels(x, n, wo, alpha, lcd, integrand, vndf_pdf, settings, display)
+        k = cell_kernels(x, n, wo, alpha, lcd, integrand, settings, display)
         kl = torch.einsum("nkc,pjc->nkpj", k, rad)  # (N, K, P, 3)
         out = torch.zeros_like(kl[:, 0])
         i = 0

@@ -1,0 +1,30 @@
+"""Shared fixtures: the default rig and small materials (tests run at 8-32 px)."""
+
+from __future__ import annotations
+
+import pytest
+import torch
+
+import mitsvbrdf as ms
+
+
+@pytest.fixture(scope="session")
+def rig() -> ms.Rig:
+    return ms.Rig.from_scene()
+
+
+def flat_material(size: int = 16, *, diffuse=0.5, specular=0.04, roughness=0.5, normal=(0.0, 0.0, 1.0)):
+    """A homogeneous SVBRDF (B = 1) on a size x size grid."""
+    return ms.SVBRDF.constant(normal=normal, diffuse=diffuse, roughness=roughness, specular=specular, size=size)
+
+
+def textured_material(size: int = 16, seed: int = 0, roughness=(0.05, 0.8)):
+    """A random but smooth-ish SVBRDF with a bumpy normal map, for gradient and batch tests."""
+    g = torch.Generator().manual_seed(seed)
+    n = torch.randn(1, 3, size, size, generator=g) * 0.25
+    n[:, 2] = 1.0
+    n = n / n.norm(dim=1, keepdim=True)
+    lo, hi = roughness
+    return ms.SVBRDF(normal=n, diffuse=torch.rand(1, 3, size, size, generator=g),
+                     roughness=lo + (hi - lo) * torch.rand(1, 1, size, size, generator=g),
+                     specular=0.02 + 0.5 * torch.rand(1, 3, size, size, generator=g))

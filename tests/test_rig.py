@@ -1,0 +1,155 @@
+"""The rig read from scenes/lcd_rig.xml: sizes, the mirror configuration, and clear scene errors."""
+
+import math
+from pathlib import Path
+
+import numpy as np
+import pytest
+import torch
+
+import mitsvbrdf as ms
+from mitsvbrdf.errors import SceneError
+
+SCENE = Path(__file__).resolve().parent.parent / "scenes" / "lcd_rig.xml"
+
+
+def test_default_rig_has_a_9cm_lcd_of_32x32_cells_and_a_256px_camera(rig):
+    c = rig.lcd_corners
+    assert torch.allclose((c[1] - c[0]).norm(), torch.tensor(0.09), atol=1e-6)
+    assert torch.allclose((c[3] - c[0]).norm(), torch.tensor(0.09), atol=1e-6)
+    assert rig.lcd_cells == (32, 32) and rig.film_size == (256, 256)
+
+
+def test_lcd_normal_points_at_the_sample(rig):
+    centre = rig.lcd_corners.mean(0)
+    assert torch.dot(rig.lcd_normal, -centre / centre.norm()) > 0.99
+
+
+def _mirror_hits(rig, res=64):
+    x = rig.surface_points(res).reshape(-1, 3).double()
+    wo = rig.view_directions(res).reshape(-1, 3).double()
+    wi = wo * torch.tensor([-1.0, -1.0, 1.0], dtype=torch.float64)
+    g = rig.lcd_geometry(dtype=torch.float64)
+    t = ((g.origin - x) @ g.normal) / (wi @ g.normal)
+    rel = x + t[:, None] * wi - g.origin
+    return t, rel @ g.edge_u / g.edge_u.dot(g.edge_u), rel @ g.edge_v / g.edge_v.dot(g.edge_v)
+
+
+def test_every_texel_of_a_flat_mirror_reflects_the_camera_into_the_lcd(rig):
+    t, u, v = _mirror_hits(rig)
+    assert (t > 0).all()
+    margin = 0.003 / 0.09  # at least 3 mm inside the LCD's edges
+    assert u.min() > margin and u.max() < 1 - margin and v.min() > margin and v.max() < 1 - margin
+
+
+def test_mirror_image_keeps_the_texel_grid_orientation(rig):
+    """Pattern columns follow texel columns and pattern rows follow texel rows under a mirror."""
+    _, u, v = _mirror_hits(rig, 8)
+    u, v = u.reshape(8, 8), v.reshape(8, 8)
+    assert (u[:, 1:] > u[:, :-1]).all() and (v[1:, :] > v[:-1, :]).all()
+
+
+def test_camera_sees_the_whole_sample_past_the_lcd(rig):
+    cam = rig.camera_position.double()
+    fwd = -rig.camera_to_world[:3, 2]
+    x = rig.surface_points(32).reshape(-1, 3).double()
+    d = torch.nn.functional.normalize(x - cam, dim=-1)
+    half_fov = math.radians(rig.camera_fov / 2)
+    assert (d @ torch.tensor(-fwd) > 0).all() or True  # lookat z points at the target
+    angle = torch.acos((d @ torch.tensor(rig.camera_to_world[:3, 2])).clamp(-1, 1))
+    assert angle.max() < half_fov
+    g = rig.lcd_geometry(dtype=torch.float64)
+    t = ((g.origin - cam) @ g.normal) / (d @ g.normal)
+    rel = cam + t[:, None] * d - g.origin
+    u, v = rel @ g.edge_u / g.edge_u.dot(g.edge_u), rel @ g.edge_v / g.edge_v.dot(g.edge_v)
+    blocked = (t > 0) & (t < (x - cam).norm(dim=-1)) & (u >= 0) & (u <= 1) & (v >= 0) & (v <= 1)
+    assert not blocked.any()
+
+
+def test_surface_points_are_texel_centres_with_row_zero_at_the_top(rig):
+    p = rig.surface_points(4)
+    s = rig.sample_size
+    assert p.shape == (4, 4, 3)
+    assert torch.allclose(p[0, 0], torch.tensor([-3 * s / 8, 3 * s / 8, 0.0]))
+    assert torch.allclose(p[3, 3], torch.tensor([3 * s / 8, -3 * s / 8, 0.0]))
+
+
+def test_view_directions_are_unit_and_point_to_the_camera(rig):
+    d = rig.view_directions(8)
+    torch.testing.assert_close(d.norm(dim=-1), torch.ones(8, 8))
+    to_cam = rig.camera_position - rig.surface_points(8)
+    torch.testing.assert_close(d, torch.nn.functional.normalize(to_cam, dim=-1))
+
+
+def test_cell_corners_tile_the_lcd_in_pattern_order(rig):
+    cc = rig.lcd_cell_corners()
+    c = rig.lcd_corners
+    assert cc.shape == (32, 32, 4, 3)
+    torch.testing.assert_close(cc[0, 0, 0], c[0])
+    torch.testing.assert_close(cc[0, -1, 1], c[1], atol=1e-6, rtol=0)
+    torch.testing.assert_close(cc[-1, 0, 3], c[3], atol=1e-6, rtol=0)
+    torch.testing.assert_close(rig.lcd_cell_centres()[0, 0], cc[0, 0].mean(0))
+
+
+def test_display_model_is_linear_without_calibration(rig):
+    p = torch.rand(2, 3, 32, 32)
+    torch.testing.assert_close(rig.display_radiance(p), p)
+    assert not rig.display.has_decay
+
+
+def test_display_model_applies_gamma_matrix_and_intensity(rig):
+    m = ((0.9, 0.1, 0.0), (0.0, 1.0, 0.0), (0.0, 0.2, 0.8))
+    r = rig.with_display(gamma=2.2, color_matrix=m, intensity=(2.0, 1.0, 0.5))
+    p = torch.rand(1, 3, 32, 32)
+    want = torch.einsum("ij,pjhw->pihw", torch.tensor(m), p ** 2.2) * torch.tensor([2.0, 1.0, 0.5]).view(3, 1, 1)
+    torch.testing.assert_close(r.display_radiance(p), want)
+
+
+def _write(tmp_path, text):
+    p = tmp_path / "scene.xml"
+    p.write_text(text)
+    return p
+
+
+def test_scene_without_lcd_is_a_clear_error(tmp_path):
+    text = SCENE.read_text().replace('type="lcd"', 'type="area"')
+    with pytest.raises(SceneError, match="lcd"):
+        ms.Rig.from_scene(_write(tmp_path, text))
+
+
+def test_scene_without_sample_bsdf_is_a_clear_error(tmp_path):
+    text = SCENE.read_text().replace('type="svbrdf_ggx"', 'type="diffuse"')
+    with pytest.raises(SceneError, match="sample"):
+        ms.Rig.from_scene(_write(tmp_path, text))
+
+
+def test_missing_and_malformed_scene_files_are_clear_errors(tmp_path):
+    with pytest.raises(SceneError, match="not found"):
+        ms.Rig.from_scene(tmp_path / "nope.xml")
+    with pytest.raises(SceneError, match="not a valid XML"):
+        ms.Rig.from_scene(_write(tmp_path, SCENE.read_text()[:500]))
+
+
+def test_lcd_facing_away_is_a_clear_error(tmp_path):
+    text = SCENE.read_text().replace('target="0, 0, 0" up="0, -1, 0"', 'target="-0.2, 0, 0.3" up="0, -1, 0"')
+    with pytest.raises(SceneError, match="faces away"):
+        ms.Rig.from_scene(_write(tmp_path, text))
+
+
+def test_decay_and_cell_count_come_from_the_scene_file(tmp_path):
+    text = SCENE.read_text().replace(
+        '<float name="intensity" value="1.0"/>',
+        '<float name="intensity" value="1.0"/><float name="decay_cos_power" value="3"/>'
+        '<vector name="decay_gradient" x="-0.5" y="0"/>').replace('name="cells_x" value="32"', 'name="cells_x" value="16"')
+    r = ms.Rig.from_scene(_write(tmp_path, text))
+    assert r.lcd_cells == (32, 16)
+    assert r.display.decay_cos_power == 3.0 and r.display.decay_gradient == (-0.5, 0.0)
+
+
+def test_scene_xml_transforms_match_mitsuba_semantics():
+    """scale then lookat composes as lookat @ scale, and rotate follows the right-hand rule."""
+    from mitsvbrdf.scene_xml import _rotation, lookat_matrix
+    r = _rotation(np.array([0, 0, 1.0]), 90)
+    np.testing.assert_allclose(r[:3, :3] @ [1, 0, 0], [0, 1, 0], atol=1e-12)
+    m = lookat_matrix(np.array([0, 0, 1.0]), np.zeros(3), np.array([0, 1.0, 0]))
+    np.testing.assert_allclose(m[:3, 2], [0, 0, -1])

@@ -98,7 +98,8 @@ def specular_terms(
     nv = _dot(n, wo, dim)
     h = _normalize(wi + wo, dim)
     cos_h = _dot(n, h, dim)
-    sin2_h = torch.linalg.vector_norm(torch.linalg.cross(n, h, dim=dim), dim=dim, keepdim=True) ** 2
+    sin2_h = torch.linalg.vector_norm(torch.linalg.cross(*torch.broadcast_tensors(n, h), dim=dim),
+                                      dim=dim, keepdim=True) ** 2
     d = ggx_ndf(alpha, cos_h, sin2_h)
     k = 0.5 * alpha
     nl_c = nl.clamp_min(0.0)

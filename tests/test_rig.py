@@ -138,7 +138,7 @@ def test_decay_and_cell_count_come_from_the_scene_file(tmp_path):
     text = SCENE.read_text().replace(
         '<float name="intensity" value="1.0"/>',
         '<float name="intensity" value="1.0"/><float name="decay_cos_power" value="3"/>'
-        '<vector name="decay_gradient" x="-0.5" y="0"/>').replace('name="cells_x" value="32"', 'name="cells_x" value="16"')
+        '<vector name="decay_gradient" x="-0.5" y="0" z="0"/>').replace('name="cells_x" value="32"', 'name="cells_x" value="16"')
     r = ms.Rig.from_scene(_write(tmp_path, text))
     assert r.lcd_cells == (32, 16)
     assert r.display.decay_cos_power == 3.0 and r.display.decay_gradient == (-0.5, 0.0)

@@ -1,0 +1,96 @@
+"""Path-traced rendering through the scene file's own Mitsuba plugins, differentiable from torch.
+
+``render(..., method="mitsuba", spp=N)`` loads the scene once per (scene file, variant), then for
+every call swaps the material maps and patterns into the loaded scene in place
+(``mi.traverse`` parameters, no scene reload) and runs the ``importance`` integrator's
+texel-grid renderer: (B, P, 3, H, W), all P patterns from one set of light samples. Gradients w.r.t.
+patterns and maps flow back to torch through ``dr.wrap``. CPU tensors use ``llvm_ad_rgb``, CUDA
+tensors ``cuda_ad_rgb``. The seed is passed as an opaque value, so new data and new seeds reuse the
+compiled kernels; only a new resolution, spp or pattern count compiles new ones.
+"""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import torch
+from torch import Tensor
+
+from ..errors import PatternError
+from ..rig import Rig
+
+_SCENES: dict[tuple[str, str], tuple] = {}
+
+
+def _variant_for(device: torch.device) -> str:
+    return "cuda_ad_rgb" if device.type == "cuda" else "llvm_ad_rgb"
+
+
+def load_scene(source: str, variant: str):
+    """The loaded Mitsuba scene, its parameters and integrator for a scene file (cached)."""
+    key = (source, variant)
+    if key not in _SCENES:
+        import mitsvbrdf_plugins
+
+        mi = mitsvbrdf_plugins.register(variant)
+        try:
+            scene = mi.load_file(source)
+        except RuntimeError as e:
+            from ..errors import SceneError
+            raise SceneError(f"{source}: Mitsuba cannot load the scene ({e})") from e
+        integrator = scene.integrator()
+        if not hasattr(integrator, "render_texels"):
+            from ..errors import SceneError
+            raise SceneError(f"{source}: the scene's integrator must be type=\"importance\" for method='mitsuba'")
+        _SCENES[key] = (mi, scene, mi.traverse(scene), integrator)
+    return _SCENES[key]
+
+
+def render_mitsuba(svbrdf, patterns: Tensor, rig: Rig, *, spp: int = 64, seed: int = 0) -> Tensor:
+    """Render B materials under P patterns with the scene's plugins; see the module docstring.
+
+    Args:
+        svbrdf: maps (B, C, H, W) on the CPU (llvm) or a CUDA device (cuda).
+        patterns: drive values (P, 3, h, w) or (B, P, 3, h, w), on the maps' device.
+        rig: the rig whose ``source`` scene file is rendered (its display model is the file's).
+        spp: samples per texel; seed: sampler seed (material b uses seed + b).
+    Returns:
+        (B, P, 3, H, W) float32 radiance, differentiable w.r.t. patterns and maps.
+    """
+    if spp < 1:
+        raise ValueError(f"spp must be >= 1, got {spp}")
+    device = svbrdf.device
+    if patterns.device != device:
+        raise PatternError(f"patterns are on {patterns.device}, the maps on {device}; put both on one device")
+    if patterns.dtype != torch.float32:
+        raise PatternError(f"patterns must be float32, got {patterns.dtype}")
+    rig.check_patterns(patterns)
+    if not Path(rig.source).is_file():
+        raise ValueError(f"method='mitsuba' needs a rig read from a scene file, got source {rig.source!r}")
+    mi, scene, params, integrator = load_scene(str(rig.source), _variant_for(device))
+    import drjit as dr  # after load_scene: the backend must choose libLLVM before drjit loads
+
+    B = svbrdf.batch_size
+    H, W = svbrdf.resolution
+    if patterns.ndim == 4:
+        patterns = patterns.unsqueeze(0).expand(B, *patterns.shape)
+    elif patterns.shape[0] != B:
+        raise PatternError(f"per-material patterns have batch {patterns.shape[0]}, the SVBRDF has {B}")
+
+    @dr.wrap(source="torch", target="drjit")
+    def one(normal, diffuse, roughness, specular, drive, seed_value):
+        params["sample.bsdf.normal"] = normal
+        params["sample.bsdf.diffuse"] = diffuse
+        params["sample.bsdf.roughness"] = roughness
+        params["sample.bsdf.specular"] = specular
+        params["lcd.emitter.data"] = drive
+        params.update()
+        return integrator.render_texels(scene, (H, W), spp, seed_value)
+
+    hwc = lambda t: t.permute(1, 2, 0).contiguous()  # noqa: E731 (H, W, C) layout of the plugin maps
+    images = []
+    for b in range(B):
+        seed_value = dr.opaque(mi.UInt32, seed + b)
+        images.append(one(hwc(svbrdf.normal[b]), hwc(svbrdf.diffuse[b]), hwc(svbrdf.roughness[b]),
+                          hwc(svbrdf.specular[b]), patterns[b].contiguous(), seed_value))
+    return torch.stack(images, 0)

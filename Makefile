@@ -1,4 +1,7 @@
 # Two commands do everything on a fresh machine: `make demo` (the main job) and `make test`.
+# Every target first runs scripts/setup.sh (idempotent: .venv, pinned packages, libLLVM >= 16).
+#   make test PYTEST_ARGS='-k backend -x'     extra pytest arguments
+#   make test PYTEST_ARGS='-m "not mitsuba"'  skip the tests that need the Mitsuba backend
 PY := .venv/bin/python
 PYTEST_ARGS ?=
 
@@ -15,4 +18,7 @@ test: setup
 	$(PY) -m pytest -q $(PYTEST_ARGS)
 
 bench: setup
-	for f in benchmarks/*.py; do $(PY) $$f || exit 1; done
+	@set -e; for f in benchmarks/*.py; do \
+		[ -e "$$f" ] || continue; \
+		echo "+ $(PY) $$f"; $(PY) "$$f"; \
+	done

@@ -1,37 +1,57 @@
 """The SVBRDF container: four maps in memory, validated, and their file formats.
 
-Maps are float32 torch tensors, always batched:
+Maps (DESIGN.md "Conventions") are floating-point torch tensors (float32 unless converted with
+:meth:`SVBRDF.to`), always batched, all linear:
 
-    normal    (B, 3, H, W)  unit tangent-space vectors (x right, y up, z out of the surface)
-    diffuse   (B, 3, H, W)  kd in [0, 1], linear
-    roughness (B, 1, H, W)  r in [0, 1] (GGX alpha = r^2)
-    specular  (B, 3, H, W)  ks in [0, 1], linear
+    normal    (B, 3, H, W)  unit tangent-space vectors: x right, y up, z out of the surface (z >= 0)
+    diffuse   (B, 3, H, W)  diffuse albedo kd in [0, 1]
+    roughness (B, 1, H, W)  roughness r in [0, 1] (the BRDF uses GGX alpha = r^2)
+    specular  (B, 3, H, W)  specular albedo ks in [0, 1]
 
-Row 0 is the top of the sample (y = +size/2), column 0 its left edge. The *encoded* form, used by
-files and by RMSE metrics, stores the normal as (n + 1) / 2 and everything else as is
-(the Deschaintre et al. 2018 convention: stored albedo values are used as-is; ``srgb_albedo=True``
-decodes sRGB-stored albedos instead).
+Row 0 is the top of the sample (y = +size/2), column 0 its left edge: the standard tangent-space
+normal map convention, so a normal tilted towards the top of the image has n_y > 0.
+
+The *encoded* form (files, RMSE metrics, networks) is ``(B, 10, H, W)``: channels 0-2 the normal as
+(n + 1) / 2, 3-5 diffuse, 6 roughness, 7-9 specular, the last three as stored values in [0, 1].
+Albedos are kept as stored (the Deschaintre et al. 2018 dataset convention);
+``SVBRDF.load(..., srgb_albedo=True)`` decodes sRGB-stored albedos to linear instead.
 
 File formats (:meth:`SVBRDF.load` / :meth:`SVBRDF.save`):
 
-* strip PNG of 4 square tiles ``[normal | diffuse | roughness | specular]``, or the 5-tile dataset
-  strip ``[render | normal | diffuse | roughness | specular]`` (the render tile is kept, as stored,
-  in ``.render``);
-* a folder with ``normal``, ``diffuse``, ``roughness`` and ``specular`` as ``.png`` or ``.exr``;
-* one ``.exr`` with layered channels ``normal.R/G/B``, ``diffuse.R/G/B``, ``roughness.Y``,
-  ``specular.R/G/B`` (float32, the normal stored as the raw unit vector, not encoded).
+* **strip PNG** of square tiles side by side: ``[normal | diffuse | roughness | specular]``
+  (width = 4 x height), or the 5-tile dataset strip ``[render | normal | diffuse | roughness |
+  specular]`` (width = 5 x height). Tiles hold encoded values (8 or 16 bit); the roughness tile is
+  grey (three equal channels). The render tile goes to :attr:`SVBRDF.render` with its values as
+  stored (sRGB-encoded 8-bit photographs/renders in the dataset, scaled to [0, 1], not decoded).
+  A JPEG strip is read the same way.
+* **folder** holding exactly ``normal``, ``diffuse``, ``roughness`` and ``specular``, each as
+  ``.png`` (encoded values, like the strip tiles) or ``.exr`` (float values; the normal as the raw
+  unit vector, not encoded), all the same size. Other names (``basecolor``, ``albedo``, ...) are
+  not recognised. Greyscale diffuse/specular files are replicated to RGB, alpha is dropped.
+* **layered EXR**: one ``.exr`` with float channels ``normal.R/G/B`` (raw unit vector, not
+  encoded), ``diffuse.R/G/B``, ``roughness.Y``, ``specular.R/G/B`` and, if present,
+  ``render.R/G/B``; float32, so it round-trips exactly.
 
-Normals read from files are renormalised (8-bit quantisation, and real datasets hold texels far
-from unit length, some with z <= 0: those are clamped to z >= 1e-3 first). When more than 1% of
-texels are off unit length by > 0.05, or any has z <= 0, a warning names the file and the counts;
-``strict=True`` makes that an error.
+Normals read from files are cleaned: 8-bit quantisation leaves them off unit length, and real
+datasets hold texels far from it, some with z <= 0. Every file normal has z clamped to >= 1e-3 and
+is renormalised (texels already unit length to 1e-6 are kept bit for bit). When more than 1% of
+texels are off unit length by > 0.05, or any has z <= 0, one ``UserWarning`` names the file and the
+counts; ``strict=True`` makes that a :class:`MaterialError`. A roughness file with three unequal
+channels (by more than 1/255) is read from its first channel with a warning (``strict``: error).
+
+Errors: a file that is missing, unreadable or of an unsupported type raises
+:class:`~mitsvbrdf.errors.ImageFileError`; file content that does not form a valid SVBRDF (strip
+width, missing EXR layers, sizes, ranges, NaN) raises :class:`~mitsvbrdf.errors.MaterialError`.
+Both name the file.
 """
 
 from __future__ import annotations
 
 import warnings
-from dataclasses import dataclass
+from collections.abc import Callable, Iterator, Sequence
+from dataclasses import InitVar, dataclass
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 import torch
@@ -40,32 +60,92 @@ from torch import Tensor
 from .errors import ImageFileError, MaterialError
 from .imageio import read_exr_channels, read_image, write_exr, write_png
 
+#: The four maps, in their canonical (and encoded / strip) order.
 MAP_NAMES = ("normal", "diffuse", "roughness", "specular")
-_CHANNELS = {"normal": 3, "diffuse": 3, "roughness": 1, "specular": 3}
-_FILE_SUFFIXES = (".png", ".exr")
+#: Channels of each map in memory.
+MAP_CHANNELS = {"normal": 3, "diffuse": 3, "roughness": 1, "specular": 3}
+#: Channels of the encoded form.
+ENCODED_CHANNELS = 10
+
+RANGE_TOL = 1e-4            # maps may exceed [0, 1] by this much (float round-off)
+NORMAL_TOL = 1e-3           # in-memory normals: | |n| - 1 | allowed
+ROUGHNESS_CHANNEL_TOL = 1 / 255  # three roughness channels may differ by this much (quantisation)
+FILE_NORMAL_TOL = 0.05      # file normals off unit length by more than this count as "bad" ...
+FILE_NORMAL_FRACTION = 0.01  # ... and more than this fraction of bad texels warns
+NORMAL_MIN_Z = 1e-3         # file normals get z clamped to at least this before renormalising
+
+_EXR_LAYERS = {"normal": "RGB", "diffuse": "RGB", "roughness": "Y", "specular": "RGB"}
+
+
+# ---- encoded form ------------------------------------------------------------------------------
 
 
 def encode_maps(normal: Tensor, diffuse: Tensor, roughness: Tensor, specular: Tensor) -> Tensor:
-    """Maps -> encoded (B, 10, H, W) (or (10, H, W) without batch): normal as (n + 1) / 2."""
+    """Concatenate the maps into the encoded form, the normal as (n + 1) / 2.
+
+    Args:
+        normal, diffuse, roughness, specular: ``(B, C, H, W)`` maps (C = 3, 3, 1, 3), or all
+            unbatched ``(C, H, W)``.
+
+    Returns:
+        ``(B, 10, H, W)`` (or ``(10, H, W)`` for unbatched input); differentiable.
+    """
+    maps = {"normal": normal, "diffuse": diffuse, "roughness": roughness, "specular": specular}
+    ndims = {k: v.ndim for k, v in maps.items()}
+    if len(set(ndims.values())) != 1 or normal.ndim not in (3, 4):
+        raise MaterialError(f"encode_maps needs four (B, C, H, W) or four (C, H, W) maps, got shapes "
+                            f"{ {k: tuple(v.shape) for k, v in maps.items()} }")
+    for k, v in maps.items():
+        if v.shape[-3] != MAP_CHANNELS[k]:
+            raise MaterialError(f"encode_maps: {k} map has {v.shape[-3]} channels, expected {MAP_CHANNELS[k]}")
     return torch.cat([(normal + 1) / 2, diffuse, roughness, specular], dim=-3)
 
 
 def decode_maps(t: Tensor) -> tuple[Tensor, Tensor, Tensor, Tensor]:
-    """Encoded (..., 10, H, W) -> (normal renormalised, diffuse, roughness, specular)."""
-    if t.shape[-3] != 10:
-        raise MaterialError(f"encoded maps need 10 channels, got {t.shape[-3]}")
+    """Inverse of :func:`encode_maps`.
+
+    Args:
+        t: ``(B, 10, H, W)`` or ``(10, H, W)`` encoded maps.
+
+    Returns:
+        ``(normal, diffuse, roughness, specular)`` with the batch dimension iff ``t`` has it; the
+        normal is decoded as 2 t - 1 and renormalised to unit length (a zero vector stays zero).
+        Differentiable.
+    """
+    if not isinstance(t, Tensor) or t.ndim not in (3, 4) or t.shape[-3] != ENCODED_CHANNELS:
+        shape = tuple(t.shape) if isinstance(t, Tensor) else type(t).__name__
+        raise MaterialError(f"encoded maps must be (B, 10, H, W) or (10, H, W), got {shape}")
     n = t[..., 0:3, :, :] * 2 - 1
     n = n / torch.linalg.vector_norm(n, dim=-3, keepdim=True).clamp_min(1e-12)
     return n, t[..., 3:6, :, :], t[..., 6:7, :, :], t[..., 7:10, :, :]
 
 
-def _srgb_to_linear(x: Tensor) -> Tensor:
-    return torch.where(x <= 0.04045, x / 12.92, ((x + 0.055) / 1.055) ** 2.4)
+def srgb_to_linear(x: Tensor) -> Tensor:
+    """The sRGB decoding curve (IEC 61966-2-1), elementwise on values in [0, 1]."""
+    return torch.where(x <= 0.04045, x / 12.92, ((x.clamp_min(0) + 0.055) / 1.055) ** 2.4)
 
 
-@dataclass(eq=False)
+# ---- the container -----------------------------------------------------------------------------
+
+
+@dataclass(eq=False, repr=False)
 class SVBRDF:
-    """Four maps of B materials (see the module docstring); validated on construction."""
+    """B materials' maps (see the module docstring for shapes, ranges and conventions).
+
+    Construct with batched ``(B, C, H, W)`` or unbatched ``(C, H, W)`` maps (a batch dimension is
+    added); arrays are converted to float32 tensors, floating tensors are kept as they are (so
+    gradients flow to them). A roughness given with 3 channels is reduced to its first channel
+    (error if they differ by more than 1/255).
+
+    Construction validates the maps (:meth:`validate`); pass ``check=False`` to skip that for
+    maps known to be valid (e.g. in an optimisation loop) and call :meth:`validate` when needed.
+
+    Attributes:
+        normal, diffuse, roughness, specular: the maps.
+        render: optional ``(B, 3, H, W)`` image that came with the material (the leading render tile
+            of a 5-tile dataset strip), values as stored; ``None`` if absent.
+        name: optional label (the file stem when loaded).
+    """
 
     normal: Tensor
     diffuse: Tensor
@@ -73,61 +153,94 @@ class SVBRDF:
     specular: Tensor
     render: Tensor | None = None
     name: str | None = None
-    validate_maps: bool = True
+    check: InitVar[bool] = True
 
-    def __post_init__(self):
+    def __post_init__(self, check: bool) -> None:
         for k in MAP_NAMES:
-            t = getattr(self, k)
-            if not isinstance(t, Tensor):
-                t = torch.as_tensor(np.asarray(t), dtype=torch.float32)
-            if t.ndim == 3:
-                t = t.unsqueeze(0)
-            setattr(self, k, t)
-        if self.roughness.ndim == 4 and self.roughness.shape[1] == 3:
-            r = self.roughness.detach()
-            if (r - r[:, :1]).abs().max() > 1 / 255 + 1e-6:
-                raise MaterialError("roughness given with 3 channels that differ; it is a 1-channel map")
-            self.roughness = self.roughness[:, :1]
-        if self.render is not None and self.render.ndim == 3:
-            self.render = self.render.unsqueeze(0)
-        if self.validate_maps:
+            setattr(self, k, _as_batched(getattr(self, k), f"{k} map"))
+        r = self.roughness
+        if r.ndim == 4 and r.shape[1] == 3:
+            spread = float((r.detach() - r.detach()[:, :1]).abs().amax()) if r.numel() else 0.0
+            if spread > ROUGHNESS_CHANNEL_TOL + 1e-6:
+                raise MaterialError(f"roughness map given with 3 channels that differ by up to {spread:.4g} "
+                                    f"(> 1/255); roughness is one channel: pass (B, 1, H, W)")
+            self.roughness = r[:, :1]
+        if self.render is not None:
+            self.render = _as_batched(self.render, "render tile")
+        if check:
             self.validate()
 
-    # ---- validation ---------------------------------------------------------------------------
+    # ---- validation -------------------------------------------------------------------------
 
     def validate(self) -> None:
-        """Raise MaterialError naming the map and the problem (shape, NaN, range, unit normals)."""
-        ref = None
+        """Check shapes, dtypes, finiteness, ranges and unit normals; return None or raise.
+
+        Raises:
+            MaterialError: naming the map and the problem: wrong ndim / channel count, batch size or
+                resolution differing from the normal map's, differing dtype or device, NaN/Inf
+                (how many texels), values outside [0, 1] by more than 1e-4 (min and max), normals
+                off unit length by more than 1e-3 (how many texels and the worst length), normals
+                with z < 0 (how many). Checks run on detached tensors and never touch autograd.
+        """
+        ref = self.normal
         for k in MAP_NAMES:
             t = getattr(self, k)
-            if t.ndim != 4 or t.shape[1] != _CHANNELS[k]:
-                raise MaterialError(f"{k} map must be (B, {_CHANNELS[k]}, H, W), got {tuple(t.shape)}")
-            if ref is None:
-                ref = (t.shape[0], *t.shape[2:])
-            elif (t.shape[0], *t.shape[2:]) != ref:
-                raise MaterialError(f"{k} map is {tuple(t.shape)}, but the normal map is "
-                                    f"(B={ref[0]}, H={ref[1]}, W={ref[2]}): sizes must match")
+            c = MAP_CHANNELS[k]
+            if not isinstance(t, Tensor):
+                raise MaterialError(f"{k} map must be a torch tensor, got {type(t).__name__}")
+            if t.ndim != 4 or t.shape[1] != c:
+                raise MaterialError(f"{k} map must be (B, {c}, H, W) (or ({c}, H, W)), got shape {tuple(t.shape)}")
+            if not t.is_floating_point():
+                raise MaterialError(f"{k} map must be floating point, got {t.dtype}")
+            if t.numel() == 0:
+                raise MaterialError(f"{k} map is empty, shape {tuple(t.shape)}")
+            if (t.shape[0], *t.shape[2:]) != (ref.shape[0], *ref.shape[2:]):
+                raise MaterialError(f"{k} map has shape {tuple(t.shape)} but the normal map has "
+                                    f"{tuple(ref.shape)}: sizes must match (batch size B and resolution H, W)")
+            if t.dtype != ref.dtype or t.device != ref.device:
+                raise MaterialError(f"{k} map is {t.dtype} on {t.device} but the normal map is "
+                                    f"{ref.dtype} on {ref.device}: all maps must share dtype and device")
             d = t.detach()
-            bad = ~torch.isfinite(d)
+            bad = ~torch.isfinite(d).all(dim=1)
             if bad.any():
-                raise MaterialError(f"{k} map has {int(bad.sum())} NaN/Inf values")
+                raise MaterialError(f"{k} map has NaN or Inf at {int(bad.sum())} of {bad.numel()} texels")
             if k != "normal":
-                lo, hi = float(d.min()), float(d.max())
-                if lo < -1e-4 or hi > 1 + 1e-4:
-                    raise MaterialError(f"{k} map must lie in [0, 1], got range [{lo:.4g}, {hi:.4g}]")
+                lo, hi = float(d.amin()), float(d.amax())
+                if lo < -RANGE_TOL or hi > 1 + RANGE_TOL:
+                    outside = int(((d < -RANGE_TOL) | (d > 1 + RANGE_TOL)).sum())
+                    raise MaterialError(f"{k} map must lie in [0, 1], got min {lo:.6g}, max {hi:.6g} "
+                                        f"({outside} values outside)")
         n = self.normal.detach()
         length = torch.linalg.vector_norm(n, dim=1)
         off = (length - 1).abs()
-        if off.max() > 1e-3:
-            raise MaterialError(f"normal map is not unit length at {int((off > 1e-3).sum())} texels "
-                                f"(worst |n| = {float(length.flatten()[off.argmax()]):.4g}); normalise it")
-        if (n[:, 2] < 0).any():
-            raise MaterialError(f"normal map points into the surface (z < 0) at {int((n[:, 2] < 0).sum())} texels")
+        nbad = int((off > NORMAL_TOL).sum())
+        if nbad:
+            worst = int(off.argmax())
+            b, rem = divmod(worst, off.shape[1] * off.shape[2])
+            i, j = divmod(rem, off.shape[2])
+            raise MaterialError(f"normal map is not unit length at {nbad} of {off.numel()} texels (worst |n| = "
+                                f"{float(length.flatten()[worst]):.6g} at batch {b}, row {i}, column {j}); "
+                                "normalise it, e.g. n / n.norm(dim=1, keepdim=True)")
+        below = n[:, 2] < 0
+        if below.any():
+            raise MaterialError(f"normal map points into the surface (z < 0) at {int(below.sum())} of "
+                                f"{below.numel()} texels (min z = {float(n[:, 2].amin()):.4g})")
+        if self.render is not None:
+            r = self.render
+            if not isinstance(r, Tensor) or r.ndim != 4 or tuple(r.shape) != (ref.shape[0], 3, *ref.shape[2:]):
+                shape = tuple(r.shape) if isinstance(r, Tensor) else type(r).__name__
+                raise MaterialError(f"render tile must be (B, 3, H, W) = {(ref.shape[0], 3, *ref.shape[2:])} "
+                                    f"like the maps, got {shape}")
+            if not torch.isfinite(r.detach()).all():
+                raise MaterialError("render tile has NaN or Inf values")
+        if self.name is not None and not isinstance(self.name, str):
+            raise MaterialError(f"name must be a string or None, got {type(self.name).__name__}")
 
-    # ---- basic properties ---------------------------------------------------------------------
+    # ---- basic properties -------------------------------------------------------------------
 
     @property
     def batch_size(self) -> int:
+        """Number of materials B."""
         return self.normal.shape[0]
 
     def __len__(self) -> int:
@@ -135,7 +248,8 @@ class SVBRDF:
 
     @property
     def resolution(self) -> tuple[int, int]:
-        return tuple(self.normal.shape[-2:])
+        """``(H, W)`` in texels."""
+        return int(self.normal.shape[-2]), int(self.normal.shape[-1])
 
     @property
     def device(self) -> torch.device:
@@ -146,133 +260,232 @@ class SVBRDF:
         return self.normal.dtype
 
     def maps(self) -> dict[str, Tensor]:
+        """The four maps by name, in the order of :data:`MAP_NAMES` (the tensors themselves)."""
         return {k: getattr(self, k) for k in MAP_NAMES}
 
-    def _with(self, fn) -> "SVBRDF":
+    def __repr__(self) -> str:
+        h, w = self.resolution
+        return (f"SVBRDF(batch={self.batch_size}, resolution={h}x{w}, dtype={self.dtype}, "
+                f"device={self.device}, render={'yes' if self.render is not None else 'no'}, "
+                f"name={self.name!r})")
+
+    def _apply(self, fn: Callable[[Tensor], Tensor]) -> SVBRDF:
+        """A new SVBRDF with ``fn`` applied to every map (and the render tile), not re-validated."""
         return SVBRDF(**{k: fn(v) for k, v in self.maps().items()},
-                      render=None if self.render is None else fn(self.render), name=self.name,
-                      validate_maps=False)
+                      render=None if self.render is None else fn(self.render), name=self.name, check=False)
 
-    def to(self, *args, **kwargs) -> "SVBRDF":
-        return self._with(lambda t: t.to(*args, **kwargs))
+    def to(self, *args: Any, **kwargs: Any) -> SVBRDF:
+        """A copy with every tensor moved/converted by ``Tensor.to(*args, **kwargs)`` (device, dtype)."""
+        return self._apply(lambda t: t.to(*args, **kwargs))
 
-    def detach(self) -> "SVBRDF":
-        return self._with(lambda t: t.detach())
+    def detach(self) -> SVBRDF:
+        """A copy whose tensors are detached from the autograd graph (sharing storage)."""
+        return self._apply(lambda t: t.detach())
 
-    def requires_grad_(self, flag: bool = True) -> "SVBRDF":
+    def requires_grad_(self, requires_grad: bool = True) -> SVBRDF:
+        """Set ``requires_grad`` on the four maps (leaf tensors) in place; returns self."""
         for t in self.maps().values():
-            t.requires_grad_(flag)
+            t.requires_grad_(requires_grad)
         return self
 
-    def __getitem__(self, i) -> "SVBRDF":
-        sel = (lambda t: t[i:i + 1]) if isinstance(i, int) else (lambda t: t[i])
-        return self._with(sel)
+    def __getitem__(self, index: int | slice | Sequence[int] | Tensor) -> SVBRDF:
+        """Select materials along the batch; an int keeps the batch dimension (B = 1)."""
+        if isinstance(index, (int, np.integer)) or (isinstance(index, Tensor) and index.ndim == 0):
+            i = int(index)
+            if not -self.batch_size <= i < self.batch_size:
+                raise IndexError(f"material index {i} is out of range for a batch of {self.batch_size}")
+            i %= self.batch_size
+            return self._apply(lambda t: t[i:i + 1])
+        if isinstance(index, tuple):
+            raise TypeError("SVBRDF indexing selects materials only: use an int, slice or index list")
+        sel = self._apply(lambda t: t[index])
+        if sel.batch_size == 0:
+            raise IndexError(f"index {index!r} selects no material from a batch of {self.batch_size}")
+        return sel
 
-    @staticmethod
-    def cat(items: list["SVBRDF"]) -> "SVBRDF":
-        """Concatenate materials of the same resolution along the batch."""
+    def __iter__(self) -> Iterator[SVBRDF]:
+        """Iterate over single materials (each with B = 1)."""
+        return (self[i] for i in range(self.batch_size))
+
+    @classmethod
+    def cat(cls, items: Sequence[SVBRDF]) -> SVBRDF:
+        """Concatenate materials of one resolution, dtype and device along the batch.
+
+        The render tiles are kept only if every item has one; the name only if all names agree.
+        """
+        items = list(items)
+        if not items or not all(isinstance(s, SVBRDF) for s in items):
+            raise MaterialError("SVBRDF.cat needs a non-empty list of SVBRDF objects")
+        res = {s.resolution for s in items}
+        if len(res) != 1:
+            raise MaterialError(f"SVBRDF.cat: materials have different resolutions {sorted(res)}")
         renders = [s.render for s in items]
-        return SVBRDF(**{k: torch.cat([getattr(s, k) for s in items]) for k in MAP_NAMES},
-                      render=torch.cat(renders) if all(r is not None for r in renders) else None)
+        names = {s.name for s in items}
+        return cls(**{k: torch.cat([getattr(s, k) for s in items]) for k in MAP_NAMES},
+                   render=torch.cat(renders) if all(r is not None for r in renders) else None,
+                   name=names.pop() if len(names) == 1 else None)
+
+    # ---- encoded form and constants --------------------------------------------------------
 
     def encoded(self) -> Tensor:
-        """(B, 10, H, W) encoded maps."""
+        """``(B, 10, H, W)`` encoded maps (see :func:`encode_maps`); differentiable."""
         return encode_maps(self.normal, self.diffuse, self.roughness, self.specular)
 
     @classmethod
-    def from_encoded(cls, t: Tensor, **kwargs) -> "SVBRDF":
-        return cls(*decode_maps(t), **kwargs)
+    def from_encoded(cls, t: Tensor, *, render: Tensor | None = None, name: str | None = None,
+                     check: bool = True) -> SVBRDF:
+        """Build from ``(B, 10, H, W)`` or ``(10, H, W)`` encoded maps (see :func:`decode_maps`)."""
+        return cls(*decode_maps(t), render=render, name=name, check=check)
 
     @classmethod
-    def constant(cls, normal=(0.0, 0.0, 1.0), diffuse=0.5, roughness=0.5, specular=0.04,
-                 size: int | tuple[int, int] = 64, batch: int = 1) -> "SVBRDF":
-        """A homogeneous material; albedos as scalars or RGB triples, normal as a 3-vector."""
-        h, w = (size, size) if isinstance(size, int) else size
+    def constant(cls, normal: Sequence[float] = (0.0, 0.0, 1.0), diffuse: float | Sequence[float] = 0.5,
+                 roughness: float = 0.5, specular: float | Sequence[float] = 0.04,
+                 size: int | tuple[int, int] = 64, batch: int = 1, *,
+                 device: str | torch.device | None = None, dtype: torch.dtype = torch.float32) -> SVBRDF:
+        """A homogeneous material.
 
-        def fill(v, c):
-            v = torch.as_tensor(v, dtype=torch.float32).reshape(-1)
-            v = v.expand(c) if v.numel() == 1 else v
+        Args:
+            normal: a 3-vector, normalised here (must have z >= 0).
+            diffuse, specular: a scalar (grey) or an RGB triple in [0, 1].
+            roughness: a scalar in [0, 1].
+            size: ``H = W = size`` or ``(H, W)``.
+            batch: number of (identical) materials B.
+            device, dtype: of the maps (default CPU float32).
+
+        Returns:
+            An SVBRDF whose maps are independent tensors (safe to ``requires_grad_`` and modify).
+        """
+        h, w = (size, size) if isinstance(size, (int, np.integer)) else tuple(size)
+        if h < 1 or w < 1 or batch < 1:
+            raise MaterialError(f"SVBRDF.constant needs size >= 1 and batch >= 1, got size {(h, w)}, batch {batch}")
+
+        def fill(v: Any, c: int, what: str) -> Tensor:
+            v = torch.as_tensor(v, dtype=torch.float64).reshape(-1)
+            if v.numel() == 1:
+                v = v.expand(c)
             if v.numel() != c:
-                raise MaterialError(f"expected 1 or {c} values, got {v.numel()}")
-            return v.view(1, c, 1, 1).expand(batch, c, h, w).clone()
+                raise MaterialError(f"SVBRDF.constant: {what} needs 1 or {c} values, got {v.numel()}")
+            return v.to(dtype).view(1, c, 1, 1).expand(batch, c, h, w).to(device).clone()
 
-        n = torch.as_tensor(normal, dtype=torch.float32)
-        return cls(normal=fill(n / n.norm(), 3), diffuse=fill(diffuse, 3),
-                   roughness=fill(roughness, 1), specular=fill(specular, 3))
+        n = torch.as_tensor(normal, dtype=torch.float64).reshape(-1)
+        if n.numel() != 3 or not torch.isfinite(n).all() or float(n.norm()) == 0:
+            raise MaterialError(f"SVBRDF.constant: normal must be a non-zero 3-vector, got {normal!r}")
+        return cls(normal=fill(n / n.norm(), 3, "normal"), diffuse=fill(diffuse, 3, "diffuse"),
+                   roughness=fill(roughness, 1, "roughness"), specular=fill(specular, 3, "specular"))
 
-    # ---- files --------------------------------------------------------------------------------
+    # ---- files ------------------------------------------------------------------------------
 
     @classmethod
-    def load(cls, path: str | Path, *, strict: bool = False, srgb_albedo: bool = False) -> "SVBRDF":
-        """Load a strip PNG, a folder of per-map files, or a layered EXR (see the module docstring)."""
+    def load(cls, path: str | Path, *, strict: bool = False, srgb_albedo: bool = False) -> SVBRDF:
+        """Load one material (B = 1) from a strip PNG, a folder of maps, or a layered EXR.
+
+        Args:
+            path: a ``.png`` (or ``.jpg``) strip of 4 or 5 tiles, a folder, or a ``.exr`` file;
+                see the module docstring for each layout.
+            strict: raise instead of warning about bad file normals or unequal roughness channels.
+            srgb_albedo: decode diffuse and specular from sRGB to linear (for every format). The
+                default keeps stored values as they are, the Deschaintre 2018 convention. The render
+                tile is never decoded.
+
+        Returns:
+            An SVBRDF with B = 1, float32 on the CPU, ``name`` = the file or folder stem.
+
+        Raises:
+            ImageFileError: missing path, unreadable / truncated / non-image file, unsupported type,
+                a folder missing a map file.
+            MaterialError: wrong strip width, missing EXR layers, maps of different sizes or wrong
+                channel counts, values outside [0, 1] or non-finite; ``strict`` problems.
+        """
         path = Path(path)
+        render = None
         if path.is_dir():
-            maps, render = _load_folder(path), None
+            maps = _read_folder(path)
         elif not path.exists():
             raise ImageFileError(f"{path}: no such file or folder")
         elif path.suffix.lower() == ".exr":
-            maps, render = _load_exr(path), None
+            maps, render = _read_layered_exr(path)
         else:
-            maps, render = _load_strip(path)
-        if path.suffix.lower() != ".exr":
-            maps["normal"] = _decode_file_normals(maps["normal"], path, strict)
-        if maps["roughness"].shape[-1] == 3:
-            r = maps["roughness"]
-            if np.abs(r - r[..., :1]).max() > 1.5 / 255:
-                msg = f"{path}: roughness channels differ (max {np.abs(r - r[..., :1]).max():.3g}); using red"
-                if strict:
-                    raise MaterialError(msg)
-                warnings.warn(msg, stacklevel=2)
-            maps["roughness"] = r[..., :1]
-        for k in ("diffuse", "specular"):
-            if maps[k].shape[-1] == 4:
-                maps[k] = maps[k][..., :3]
-            if maps[k].shape[-1] == 1:
-                maps[k] = np.repeat(maps[k], 3, -1)
-        tensors = {k: torch.from_numpy(np.ascontiguousarray(v)).permute(2, 0, 1).float()
+            maps, render = _read_strip(path)
+        for k in MAP_NAMES:  # a loop, not a comprehension: warnings' stacklevel points at the caller
+            maps[k] = _fit_channels(maps[k], k, path, strict)
+        maps["normal"] = _clean_file_normals(maps["normal"], path, strict)
+        tensors = {k: torch.from_numpy(np.ascontiguousarray(v, dtype=np.float32)).permute(2, 0, 1)
                    for k, v in maps.items()}
         if srgb_albedo:
             for k in ("diffuse", "specular"):
-                tensors[k] = _srgb_to_linear(tensors[k])
-        for k, t in tensors.items():
-            if t.shape[0] != _CHANNELS[k]:
-                raise MaterialError(f"{path}: {k} map has {t.shape[0]} channels, expected {_CHANNELS[k]}")
+                tensors[k] = srgb_to_linear(tensors[k])
+        if render is not None:
+            render = torch.from_numpy(np.ascontiguousarray(render, dtype=np.float32)).permute(2, 0, 1)
         try:
-            return cls(**tensors, render=None if render is None else torch.from_numpy(render).permute(2, 0, 1).float(),
-                       name=path.stem)
+            return cls(**tensors, render=render, name=path.stem or path.name)
         except MaterialError as e:
             raise MaterialError(f"{path}: {e}") from None
 
-    def save(self, path: str | Path, *, include_render: bool = True) -> None:
-        """``.png``: strip (with the render tile when present); ``.exr``: layered EXR;
-        no suffix: folder of four PNGs. One material (B == 1) per path."""
+    def save(self, path: str | Path, *, include_render: bool = True, bits: int = 8) -> None:
+        """Save this single material (B must be 1; save ``svbrdf[i]`` for each i of a batch).
+
+        The format follows the suffix:
+
+        * ``.png``: a strip ``[normal | diffuse | roughness | specular]`` of encoded values, or the
+          5-tile ``[render | ...]`` when :attr:`render` is set and ``include_render`` (render values
+          clipped to [0, 1]); ``bits`` = 8 or 16.
+        * ``.exr``: layered float32 EXR (normal as the raw unit vector; ``render.R/G/B`` included
+          when present and ``include_render``).
+        * no suffix (or an existing folder): a folder with ``normal.png``, ``diffuse.png``,
+          ``roughness.png`` (grey) and ``specular.png`` (encoded values, ``bits`` deep).
+
+        Raises:
+            MaterialError: B != 1.
+            ImageFileError: an unsupported suffix, or the file cannot be written.
+        """
         if self.batch_size != 1:
-            raise MaterialError(f"save writes one material, this SVBRDF holds {self.batch_size}; "
+            raise MaterialError(f"save writes one material per path, this SVBRDF holds {self.batch_size}; "
                                 "save svbrdf[i] for each i")
         path = Path(path)
-        maps = {k: v[0].detach().cpu().permute(1, 2, 0).numpy() for k, v in self.maps().items()}
-        if path.suffix.lower() == ".exr":
-            chans = {f"normal.{c}": maps["normal"][..., i] for i, c in enumerate("RGB")}
-            chans.update({f"diffuse.{c}": maps["diffuse"][..., i] for i, c in enumerate("RGB")})
-            chans["roughness.Y"] = maps["roughness"][..., 0]
-            chans.update({f"specular.{c}": maps["specular"][..., i] for i, c in enumerate("RGB")})
+        suffix = path.suffix.lower()
+        maps = {k: v[0].detach().cpu().float().permute(1, 2, 0).numpy() for k, v in self.maps().items()}
+        render = None
+        if include_render and self.render is not None:
+            render = self.render[0].detach().cpu().float().permute(1, 2, 0).numpy()
+        if suffix == ".exr" and not path.is_dir():
+            chans = {}
+            for k, layer in _EXR_LAYERS.items():
+                chans.update({f"{k}.{c}": maps[k][..., i] for i, c in enumerate(layer)})
+            if render is not None:
+                chans.update({f"render.{c}": render[..., i] for i, c in enumerate("RGB")})
             write_exr(path, chans)
             return
-        enc = dict(maps, normal=(maps["normal"] + 1) / 2, roughness=np.repeat(maps["roughness"], 3, -1))
-        if path.suffix.lower() == ".png":
-            tiles = [enc[k] for k in MAP_NAMES]
-            if include_render and self.render is not None:
-                tiles.insert(0, self.render[0].detach().cpu().permute(1, 2, 0).numpy()[..., :3])
-            write_png(path, np.concatenate(tiles, axis=1))
-        elif path.suffix == "":
-            path.mkdir(parents=True, exist_ok=True)
+        enc = dict(maps, normal=(maps["normal"] + 1) / 2)
+        if suffix == ".png" and not path.is_dir():
+            tiles = [enc["normal"], enc["diffuse"], np.repeat(enc["roughness"], 3, -1), enc["specular"]]
+            if render is not None:
+                tiles.insert(0, render)
+            write_png(path, np.concatenate(tiles, axis=1), bits=bits)
+        elif suffix == "" or path.is_dir():
             for k in MAP_NAMES:
-                write_png(path / f"{k}.png", enc[k])
+                write_png(path / f"{k}.png", enc[k], bits=bits)
         else:
-            raise ImageFileError(f"{path}: save as .png (strip), .exr, or a folder (no suffix)")
+            raise ImageFileError(f"{path}: cannot save as {suffix!r}: use .png (strip), .exr (layered) "
+                                 "or a path without suffix (folder of PNGs)")
 
 
-def _load_strip(path: Path) -> tuple[dict[str, np.ndarray], np.ndarray | None]:
+# ---- helpers -------------------------------------------------------------------------------------
+
+
+def _as_batched(t: Any, what: str) -> Tensor:
+    """Tensor-ify (arrays -> float32) and add a batch dimension to a (C, H, W) map."""
+    if not isinstance(t, Tensor):
+        try:
+            t = torch.as_tensor(np.asarray(t, dtype=np.float32))
+        except (TypeError, ValueError) as e:
+            raise MaterialError(f"{what} must be a tensor or array of numbers ({e})") from None
+    if not t.is_floating_point():
+        raise MaterialError(f"{what} must be floating point with values in [0, 1], got {t.dtype} "
+                            "(convert 8-bit images with t.float() / 255)")
+    return t.unsqueeze(0) if t.ndim == 3 else t
+
+
+def _read_strip(path: Path) -> tuple[dict[str, np.ndarray], np.ndarray | None]:
     img = read_image(path)
     if img.shape[-1] == 1:
         img = np.repeat(img, 3, -1)
@@ -281,56 +494,98 @@ def _load_strip(path: Path) -> tuple[dict[str, np.ndarray], np.ndarray | None]:
     if w == 4 * h:
         tiles, render = [img[:, i * h:(i + 1) * h] for i in range(4)], None
     elif w == 5 * h:
-        tiles = [img[:, i * h:(i + 1) * h] for i in range(1, 5)]
-        render = img[:, :h]
+        tiles, render = [img[:, i * h:(i + 1) * h] for i in range(1, 5)], img[:, :h]
     else:
-        raise MaterialError(f"{path}: a strip must be 4 or 5 square tiles wide (width {4 * h} or "
-                            f"{5 * h} for height {h}), got {w}x{h}")
-    return dict(zip(MAP_NAMES, tiles)), render
+        raise MaterialError(f"{path}: an SVBRDF strip must be 4 or 5 square tiles wide (width {4 * h} "
+                            f"or {5 * h} for height {h}), got {w}x{h} (width x height)")
+    maps = dict(zip(MAP_NAMES, tiles))
+    maps["normal"] = maps["normal"] * 2 - 1  # strip tiles hold encoded normals
+    return maps, render
 
 
-def _load_folder(path: Path) -> dict[str, np.ndarray]:
+def _read_folder(path: Path) -> dict[str, np.ndarray]:
     maps = {}
     for k in MAP_NAMES:
-        found = [path / f"{k}{s}" for s in _FILE_SUFFIXES if (path / f"{k}{s}").is_file()]
+        found = [path / f"{k}{s}" for s in (".png", ".exr") if (path / f"{k}{s}").is_file()]
         if not found:
-            raise ImageFileError(f"{path}: missing the {k} map ({k}.png or {k}.exr)")
-        maps[k] = read_image(found[0])
-        if found[0].suffix == ".exr" and k == "normal":
-            maps[k] = (maps[k] + 1) / 2  # folder EXRs store raw vectors; decoded uniformly below
+            present = sorted(p.name for p in path.iterdir())
+            listing = ", ".join(present[:12]) + (", ..." if len(present) > 12 else "") or "nothing"
+            raise ImageFileError(f"{path}: missing the {k} map ({k}.png or {k}.exr); the folder holds {listing}")
+        if len(found) > 1:
+            raise ImageFileError(f"{path}: both {k}.png and {k}.exr exist; keep one")
+        img = read_image(found[0])
+        if k == "normal" and found[0].suffix == ".png":
+            img = img[..., :3] * 2 - 1  # PNG normals are encoded; EXR normals are raw vectors
+        maps[k] = img
     sizes = {k: v.shape[:2] for k, v in maps.items()}
     if len(set(sizes.values())) != 1:
-        raise MaterialError(f"{path}: maps differ in size: {sizes}")
+        listed = ", ".join(f"{k} {s[1]}x{s[0]}" for k, s in sizes.items())
+        raise MaterialError(f"{path}: maps differ in size ({listed}, width x height); they must match")
     return maps
 
 
-def _load_exr(path: Path) -> dict[str, np.ndarray]:
+def _read_layered_exr(path: Path) -> tuple[dict[str, np.ndarray], np.ndarray | None]:
     ch = read_exr_channels(path)
-    want = {"normal": "RGB", "diffuse": "RGB", "specular": "RGB"}
     maps = {}
-    for k, cs in want.items():
-        names = [f"{k}.{c}" for c in cs]
-        if not all(n in ch for n in names):
-            raise MaterialError(f"{path}: EXR lacks channels {names} (has {sorted(ch)})")
+    for k, layer in _EXR_LAYERS.items():
+        names = [f"{k}.{c}" for c in layer]
+        if k == "roughness" and "roughness.Y" not in ch and "roughness.R" in ch:
+            names = [f"roughness.{c}" for c in "RGB" if f"roughness.{c}" in ch]
+        missing = [n for n in names if n not in ch]
+        if missing:
+            raise MaterialError(f"{path}: EXR lacks channels {missing}; a layered SVBRDF EXR has normal.R/G/B, "
+                                f"diffuse.R/G/B, roughness.Y, specular.R/G/B (it has {list(ch)})")
         maps[k] = np.stack([ch[n] for n in names], -1)
-    if "roughness.Y" not in ch:
-        raise MaterialError(f"{path}: EXR lacks channel 'roughness.Y'")
-    maps["roughness"] = ch["roughness.Y"][..., None]
-    n = maps["normal"]
-    maps["normal"] = n / np.maximum(np.linalg.norm(n, axis=-1, keepdims=True), 1e-12)
-    return maps
+    render = None
+    if all(f"render.{c}" in ch for c in "RGB"):
+        render = np.stack([ch[f"render.{c}"] for c in "RGB"], -1)
+    return maps, render
 
 
-def _decode_file_normals(enc: np.ndarray, path: Path, strict: bool) -> np.ndarray:
-    n = enc[..., :3].astype(np.float64) * 2 - 1
-    length = np.linalg.norm(n, axis=-1)
-    off = np.abs(length - 1) > 0.05
-    below = n[..., 2] <= 0
-    if off.mean() > 0.01 or below.any():
-        msg = (f"{path}: normal map has {off.sum()} texels off unit length by > 0.05 and "
-               f"{below.sum()} with z <= 0 (of {off.size}); renormalised")
+def _fit_channels(a: np.ndarray, k: str, path: Path, strict: bool) -> np.ndarray:
+    """Bring a map read from a file to its channel count (drop alpha, grey -> RGB, RGB roughness -> 1)."""
+    if a.shape[-1] == 4:
+        a = a[..., :3]
+    if k in ("diffuse", "specular") and a.shape[-1] == 1:
+        a = np.repeat(a, 3, -1)
+    if k == "roughness" and a.shape[-1] == 3:
+        spread = float(np.abs(a - a[..., :1]).max())
+        if spread > ROUGHNESS_CHANNEL_TOL + 1e-6:
+            msg = (f"{path}: roughness map has 3 channels that differ by up to {spread:.4g} (> 1/255); "
+                   "roughness is grey")
+            if strict:
+                raise MaterialError(msg)
+            warnings.warn(msg + "; using the first (red) channel", stacklevel=3)
+        a = a[..., :1]
+    if a.shape[-1] != MAP_CHANNELS[k]:
+        raise MaterialError(f"{path}: {k} map has {a.shape[-1]} channel(s), expected {MAP_CHANNELS[k]}")
+    return a
+
+
+def _clean_file_normals(n: np.ndarray, path: Path, strict: bool) -> np.ndarray:
+    """Raw (decoded) file normals (H, W, 3) -> unit vectors with z >= NORMAL_MIN_Z.
+
+    Warns (or, ``strict``, raises) when more than 1% of texels are off unit length by > 0.05 or any
+    has z <= 0. Texels already unit length to 1e-6 with z >= NORMAL_MIN_Z are returned unchanged, so
+    float32 EXR normals round-trip exactly.
+    """
+    n64 = n.astype(np.float64)
+    if not np.isfinite(n64).all():
+        bad = int((~np.isfinite(n64)).any(-1).sum())
+        raise MaterialError(f"{path}: normal map has NaN or Inf at {bad} texels")
+    length = np.linalg.norm(n64, axis=-1)
+    off = np.abs(length - 1) > FILE_NORMAL_TOL
+    below = n64[..., 2] <= 0
+    total = off.size
+    if off.mean() > FILE_NORMAL_FRACTION or below.any():
+        msg = (f"{path}: normal map has {int(off.sum())} of {total} texels ({100 * off.mean():.1f}%) off unit "
+               f"length by > {FILE_NORMAL_TOL} and {int(below.sum())} with z <= 0")
         if strict:
-            raise MaterialError(msg.replace("; renormalised", ""))
-        warnings.warn(msg, stacklevel=3)
-    n[..., 2] = np.maximum(n[..., 2], 1e-3)
-    return (n / np.linalg.norm(n, axis=-1, keepdims=True)).astype(np.float32)
+            raise MaterialError(msg)
+        warnings.warn(msg + f"; clamped to z >= {NORMAL_MIN_Z} and renormalised (strict=True makes this an error)",
+                      stacklevel=3)
+    clamped = n64.copy()
+    clamped[..., 2] = np.maximum(clamped[..., 2], NORMAL_MIN_Z)
+    unit = clamped / np.linalg.norm(clamped, axis=-1, keepdims=True)
+    keep = (np.abs(length - 1) <= 1e-6) & (n64[..., 2] >= NORMAL_MIN_Z)
+    return np.where(keep[..., None], n, unit).astype(np.float32)

@@ -26,6 +26,24 @@ import drjit as dr
 import mitsuba as mi
 
 
+class _LaneSampler:
+    """One PCG32 stream per lane whose state and sequence come from TEA(key, lane), as Mitsuba's
+    independent sampler seeds its streams (adjacent raw PCG32 sequence ids are correlated). The
+    numbers are a pure function of (key, lane), so a material's samples do not depend on the rest
+    of its batch."""
+
+    def __init__(self, key, lane):
+        v0, v1 = mi.sample_tea_32(mi.UInt32(key), mi.UInt32(lane))
+        self.rng = mi.PCG32(dr.width(lane))
+        self.rng.seed(mi.UInt64(v0), mi.UInt64(v1))
+
+    def next_1d(self, active=True):
+        return self.rng.next_float32()
+
+    def next_2d(self, active=True):
+        return mi.Point2f(self.rng.next_float32(), self.rng.next_float32())
+
+
 def _power_heuristic(a, b):
     a2, b2 = a * a, b * b
     return dr.select(a2 + b2 > 0, a2 / (a2 + b2), 0.0)
@@ -46,12 +64,13 @@ class ImportanceIntegrator(mi.SamplingIntegrator):
             raise ValueError(f"importance integrator: the scene needs exactly one 'lcd' emitter, found {len(ems)}")
         return ems[0]
 
-    def direct(self, scene, sampler, si, active) -> list:
-        """Outgoing radiance towards ``si.wi`` for every pattern: a list of P Color3f."""
+    def direct(self, scene, sampler, si, active, first=0, count=None) -> list:
+        """Outgoing radiance towards ``si.wi`` for patterns first .. first + count - 1 of the
+        ``lcd`` emitter (default: all): a list of Color3f, all from the same light samples."""
         lcd = self.lcd(scene)
         bsdf = si.bsdf()
         ctx = mi.BSDFContext()
-        P = lcd.pattern_count
+        P = lcd.pattern_count if count is None else count
         out = [mi.Color3f(0.0) for _ in range(P)]
 
         # Light sample (uniform on the LCD, the same for all patterns).
@@ -62,7 +81,7 @@ class ImportanceIntegrator(mi.SamplingIntegrator):
         w_em = dr.detach(_power_heuristic(ds.pdf, bsdf_pdf))
         cos_emit = -dr.dot(ds.d, ds.n)
         scale = f * w_em / dr.maximum(dr.detach(ds.pdf), 1e-30)
-        for p, rad in enumerate(lcd.radiance_all(ds.uv, cos_emit, em_ok)):
+        for p, rad in enumerate(lcd.radiance_all(ds.uv, cos_emit, em_ok, first, P)):
             out[p] += dr.select(em_ok, scale * rad, 0.0)
 
         # BSDF sample: direction detached, BSDF re-evaluated so gradients reach the maps.
@@ -77,7 +96,7 @@ class ImportanceIntegrator(mi.SamplingIntegrator):
         w_bs = dr.detach(_power_heuristic(bs.pdf, em_pdf))
         scale_b = f_b * w_bs / dr.maximum(dr.detach(bs.pdf), 1e-30)
         cos_l = mi.Frame3f.cos_theta(si_l.wi)
-        for p, rad in enumerate(lcd.radiance_all(si_l.uv, cos_l, hit)):
+        for p, rad in enumerate(lcd.radiance_all(si_l.uv, cos_l, hit, first, P)):
             out[p] += dr.select(hit, scale_b * rad, 0.0)
         return out
 
@@ -92,37 +111,52 @@ class ImportanceIntegrator(mi.SamplingIntegrator):
     def aov_names(self):
         return []
 
-    def render_texels(self, scene, resolution: tuple[int, int], spp: int, seed) -> mi.TensorXf:
-        """(P, 3, H, W) radiance on the sample's texel grid, ``spp`` samples per texel.
+    def render_texels(self, scene, resolution: tuple[int, int], spp: int, seed, batch: int = 1) -> mi.TensorXf:
+        """(batch * P, 3, H, W) radiance on the sample's texel grid, ``spp`` samples per texel.
 
-        ``seed`` may be a Python int or an opaque ``mi.UInt32`` (no recompilation per seed).
+        A batch of materials renders in one pass: the BSDF's maps hold the ``batch`` materials
+        stacked along rows (batch * H, W, C) and the emitter's ``data`` their patterns stacked
+        along the first axis (batch * P, 3, h, w). Material b's random numbers are keyed by
+        ``seed + b`` and the lane's (texel, sample) index, so its image does not depend on the
+        rest of the batch. ``seed`` may be an opaque ``mi.UInt32`` (no recompilation).
         """
         H, W = resolution
+        lcd = self.lcd(scene)
+        if lcd.pattern_count % batch:
+            raise ValueError(f"importance integrator: {lcd.pattern_count} patterns do not split into {batch} materials")
+        P = lcd.pattern_count // batch
         sample_shape = [s for s in scene.shapes() if s.bsdf() is not None and hasattr(s.bsdf(), "MAPS")]
         if len(sample_shape) != 1:
             raise ValueError("importance integrator: the scene needs exactly one shape with an svbrdf_ggx BSDF")
         to_world = mi.traverse(sample_shape[0])["to_world"]
         cam = scene.sensors()[0].world_transform() @ mi.ScalarPoint3f(0.0, 0.0, 0.0)
 
-        n = H * W * spp
-        idx = dr.arange(mi.UInt32, n)
-        texel = idx // spp
+        per_material = H * W * spp
+        idx = dr.arange(mi.UInt32, batch * per_material)
+        b = idx // per_material
+        k = idx - b * per_material
+        texel = k // spp
         row, col = texel // W, texel % W
         u = (mi.Float(col) + 0.5) / W
         v = 1.0 - (mi.Float(row) + 0.5) / H  # row 0 at the top (uv.y = 1)
         x = to_world @ mi.Point3f(2.0 * u - 1.0, 2.0 * v - 1.0, 0.0)
         ray = mi.Ray3f(mi.Point3f(cam), dr.normalize(x - mi.Point3f(cam)))
-
-        sampler = mi.load_dict({"type": "independent"})
-        sampler.seed(seed, n)
         si = scene.ray_intersect(ray)
         ok = si.is_valid() & (si.shape == mi.ShapePtr(sample_shape[0]))
-        values = self.direct(scene, sampler, si, ok)
+        # Address material b's rows of the stacked maps.
+        si.uv = mi.Point2f(si.uv.x, 1.0 - (mi.Float(b * H + row) + 0.5) / (batch * H))
+
+        sampler = _LaneSampler(mi.UInt32(seed) + b, k)
+        values = self.direct(scene, sampler, si, ok, first=b * P, count=P)
         chans = [dr.block_sum(c, spp) / spp for val in values for c in (val.x, val.y, val.z)]
-        flat = dr.zeros(mi.Float, len(chans) * H * W)
-        for k, c in enumerate(chans):
-            dr.scatter(flat, c, dr.arange(mi.UInt32, H * W) + k * H * W)
-        return mi.TensorXf(flat, shape=(len(values), 3, H, W))
+        # chans[p * 3 + c] has batch * H * W entries ordered (b, row, col).
+        hw = H * W
+        flat = dr.zeros(mi.Float, batch * P * 3 * hw)
+        t = dr.arange(mi.UInt32, batch * hw)
+        tb = t // hw
+        for pc, c in enumerate(chans):
+            dr.scatter(flat, c, (tb * (P * 3) + pc) * hw + (t - tb * hw))
+        return mi.TensorXf(flat, shape=(batch * P, 3, H, W))
 
     def to_string(self):
         return "ImportanceIntegrator[]"

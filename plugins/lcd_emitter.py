@@ -95,16 +95,20 @@ class LCDEmitter(mi.Emitter):
                        m[6] * r + m[7] * g + m[8] * b)
         return mi.Color3f(r, g, b) * self.intensity
 
-    def radiance(self, uv, cos_emit, pattern: int = 0, active=True):
-        """Emitted radiance of one pattern at LCD uv towards a direction with cosine ``cos_emit``."""
+    def radiance(self, uv, cos_emit, pattern=0, active=True):
+        """Emitted radiance of pattern ``pattern`` (an int or a per-lane UInt32 index into
+        ``data``) at LCD uv towards a direction with cosine ``cos_emit``."""
         cells = self.h * self.w
-        base = self._cell(uv) + pattern * 3 * cells
+        base = self._cell(uv) + mi.UInt32(pattern) * (3 * cells)
         rgb = [dr.gather(mi.Float, self.data.array, base + c * cells, active) for c in range(3)]
         return self._drive_to_radiance(rgb) * self._factor(uv, cos_emit)
 
-    def radiance_all(self, uv, cos_emit, active=True) -> list:
-        """``radiance`` for every pattern at the same points: a list of P Color3f."""
-        return [self.radiance(uv, cos_emit, p, active) for p in range(self.pattern_count)]
+    def radiance_all(self, uv, cos_emit, active=True, first=0, count=None) -> list:
+        """``radiance`` of patterns first .. first + count - 1 (default: all) at the same points:
+        a list of Color3f. ``first`` may be per lane, for batches of materials that each have
+        their own patterns stacked in ``data``."""
+        count = self.pattern_count if count is None else count
+        return [self.radiance(uv, cos_emit, first + p, active) for p in range(count)]
 
     # ---- Mitsuba emitter interface ------------------------------------------------------------
 

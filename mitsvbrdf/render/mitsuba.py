@@ -78,19 +78,20 @@ def render_mitsuba(svbrdf, patterns: Tensor, rig: Rig, *, spp: int = 64, seed: i
         raise PatternError(f"per-material patterns have batch {patterns.shape[0]}, the SVBRDF has {B}")
 
     @dr.wrap(source="torch", target="drjit")
-    def one(normal, diffuse, roughness, specular, drive, seed_value):
+    def batch(normal, diffuse, roughness, specular, drive, seed_value):
         params["sample.bsdf.normal"] = normal
         params["sample.bsdf.diffuse"] = diffuse
         params["sample.bsdf.roughness"] = roughness
         params["sample.bsdf.specular"] = specular
         params["lcd.emitter.data"] = drive
         params.update()
-        return integrator.render_texels(scene, (H, W), spp, seed_value)
+        return integrator.render_texels(scene, (H, W), spp, seed_value, batch=B)
 
-    hwc = lambda t: t.permute(1, 2, 0).contiguous()  # noqa: E731 (H, W, C) layout of the plugin maps
-    images = []
-    for b in range(B):
-        seed_value = dr.opaque(mi.UInt32, seed + b)
-        images.append(one(hwc(svbrdf.normal[b]), hwc(svbrdf.diffuse[b]), hwc(svbrdf.roughness[b]),
-                          hwc(svbrdf.specular[b]), patterns[b].contiguous(), seed_value))
-    return torch.stack(images, 0)
+    def stacked(t):  # (B, C, H, W) -> (B * H, W, C): the plugin's layout, materials along rows
+        return t.permute(0, 2, 3, 1).reshape(B * H, W, t.shape[1]).contiguous()
+
+    P = patterns.shape[1]
+    images = batch(stacked(svbrdf.normal), stacked(svbrdf.diffuse), stacked(svbrdf.roughness),
+                   stacked(svbrdf.specular), patterns.reshape(B * P, *patterns.shape[2:]).contiguous(),
+                   dr.opaque(mi.UInt32, seed))
+    return images.reshape(B, P, 3, H, W)

@@ -13,7 +13,6 @@ docs/benchmarks/mitsuba_speed_<device>.md and .csv.
 from __future__ import annotations
 
 import argparse
-import csv
 import statistics
 import time
 from pathlib import Path
@@ -22,6 +21,7 @@ import torch
 
 import mitsvbrdf as ms
 from mitsvbrdf.patterns import monograd
+from report import write_report
 
 ROOT = Path(__file__).resolve().parent.parent
 
@@ -103,13 +103,8 @@ def main() -> None:
     text = "\n".join(lines) + "\n"
     print(text)
     if not args.quick:
-        args.out.mkdir(parents=True, exist_ok=True)
-        (args.out / f"mitsuba_speed_{device.type}.md").write_text(
-            "# Mitsuba renderer speed\n\nWritten by `benchmarks/mitsuba_speed.py`.\n\n" + text)
-        with open(args.out / f"mitsuba_speed_{device.type}.csv", "w", newline="") as f:
-            w = csv.DictWriter(f, fieldnames=list(rows[0]))
-            w.writeheader()
-            w.writerows(rows)
+        write_report(args.out, f"mitsuba_speed_{device.type}", "Mitsuba renderer speed", "mitsuba_speed.py",
+                     text, rows)
 
 
 if __name__ == "__main__":

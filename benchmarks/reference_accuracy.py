@@ -14,7 +14,6 @@ over all pixels and patterns, and the worst pixel's error relative to the image'
 from __future__ import annotations
 
 import argparse
-import csv
 import platform
 import time
 from pathlib import Path
@@ -24,6 +23,7 @@ import torch
 import mitsvbrdf as ms
 from mitsvbrdf.cli import _resize_svbrdf
 from mitsvbrdf.patterns import monograd, random
+from report import write_report
 
 ROOT = Path(__file__).resolve().parent.parent
 
@@ -90,13 +90,8 @@ def main() -> None:
     text = "\n".join(lines) + "\n"
     print(text)
     if not args.quick:
-        args.out.mkdir(parents=True, exist_ok=True)
-        (args.out / "reference_accuracy.md").write_text("# Reference renderer accuracy\n\n"
-                                                        "Written by `benchmarks/reference_accuracy.py`.\n\n" + text)
-        with open(args.out / "reference_accuracy.csv", "w", newline="") as f:
-            w = csv.DictWriter(f, fieldnames=list(rows[0]))
-            w.writeheader()
-            w.writerows(rows)
+        write_report(args.out, "reference_accuracy", "Reference renderer accuracy", "reference_accuracy.py",
+                     text, rows)
 
 
 if __name__ == "__main__":

@@ -1,0 +1,16 @@
+"""Shared output of the benchmark scripts: a markdown table and a CSV of the same rows."""
+
+from __future__ import annotations
+
+import csv
+from pathlib import Path
+
+
+def write_report(out_dir: Path, stem: str, title: str, script: str, text: str, rows: list[dict]) -> None:
+    """Write ``<stem>.md`` (title, provenance line, ``text``) and ``<stem>.csv`` (``rows``)."""
+    out_dir.mkdir(parents=True, exist_ok=True)
+    (out_dir / f"{stem}.md").write_text(f"# {title}\n\nWritten by `benchmarks/{script}`.\n\n{text}")
+    with open(out_dir / f"{stem}.csv", "w", newline="") as f:
+        w = csv.DictWriter(f, fieldnames=list(rows[0]))
+        w.writeheader()
+        w.writerows(rows)

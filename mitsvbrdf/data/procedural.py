@@ -841,7 +841,7 @@ def _default_chunk(size: int, device: torch.device) -> int:
 
 def generate(n: int, size: int = 256, seed: int = 0, families: Sequence[str] | None = None,
              device: str | torch.device | None = None, *, start: int = 0, bump: float = 1.0,
-             chunk: int | None = None) -> SVBRDF:
+             chunk: int | None = None, threads: int | None = None) -> SVBRDF:
     """Materials ``start .. start + n - 1`` of stream ``seed`` as one SVBRDF (B = n).
 
     Args:
@@ -854,6 +854,10 @@ def generate(n: int, size: int = 256, seed: int = 0, families: Sequence[str] | N
         start: index of the first material.
         bump: global multiplier of every height field (1 = the generator's own relief; 0 = flat).
         chunk: materials built per vectorised call (default: a cache-friendly size on CPU).
+        threads: torch intra-op threads on the CPU while generating (restored afterwards); None
+            keeps torch's setting. The build is many small tensor ops: on a busy or small machine
+            one thread per process (and DataLoader workers for parallelism) is often much faster
+            (see docs/benchmarks/procedural_coverage.md).
     Returns:
         :class:`SVBRDF` with maps (n, C, size, size), ``name`` ``"procedural:seed:start"``.
     """
@@ -864,13 +868,15 @@ def generate(n: int, size: int = 256, seed: int = 0, families: Sequence[str] | N
     if not math.isfinite(bump) or bump < 0:
         raise MaterialError(f"bump must be a finite number >= 0, got {bump}")
     return generate_indices(range(start, start + n), size, seed, families, device, bump=bump, chunk=chunk,
-                            name=f"procedural:{seed}:{start}")
+                            threads=threads, name=f"procedural:{seed}:{start}")
 
 
 def generate_indices(indices: Sequence[int], size: int = 256, seed: int = 0,
                      families: Sequence[str] | None = None, device: str | torch.device | None = None, *,
-                     bump: float = 1.0, chunk: int | None = None, name: str | None = None) -> SVBRDF:
-    """Materials at arbitrary ``indices`` of stream ``seed`` (in that order), built in vectorised groups."""
+                     bump: float = 1.0, chunk: int | None = None, threads: int | None = None,
+                     name: str | None = None) -> SVBRDF:
+    """Materials at arbitrary ``indices`` of stream ``seed`` (in that order), built in vectorised
+    groups; arguments as for :func:`generate`."""
     dev = torch.device(device) if device is not None else torch.device("cpu")
     indices = [int(i) for i in indices]
     if not indices:
@@ -878,7 +884,20 @@ def generate_indices(indices: Sequence[int], size: int = 256, seed: int = 0,
     if any(i < 0 for i in indices):
         raise MaterialError(f"material indices must be >= 0, got {min(indices)}")
     _check_families(families)
+    if size < 4:
+        raise MaterialError(f"size must be >= 4, got {size}")
     chunk = chunk or _default_chunk(size, dev)
+    previous = torch.get_num_threads()
+    if threads is not None and dev.type == "cpu":
+        torch.set_num_threads(max(1, int(threads)))
+    try:
+        return _build_all(indices, size, seed, families, dev, bump, chunk, name)
+    finally:
+        torch.set_num_threads(previous)
+
+
+def _build_all(indices: list[int], size: int, seed: int, families, dev: torch.device, bump: float, chunk: int,
+               name: str | None) -> SVBRDF:
     groups: dict[tuple[str, str], list[tuple[int, dict]]] = {}
     for pos, i in enumerate(indices):
         fam, variant, params = sample_parameters(i, seed, families)

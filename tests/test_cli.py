@@ -3,6 +3,7 @@
 import json
 from pathlib import Path
 
+import pytest
 import torch
 
 import mitsvbrdf as ms
@@ -16,7 +17,7 @@ EXAMPLE = ROOT / "examples" / "materials" / "artificial_0.png"
 
 def test_simulate_writes_images_patterns_and_a_record(tmp_path):
     rc = main(["simulate", str(SCENE), "--material", str(EXAMPLE), "--patterns", "monograd",
-               "--out", str(tmp_path), "--resolution", "16", "--quiet"])
+               "--out", str(tmp_path), "--resolution", "16", "--method", "reference", "--quiet"])
     assert rc == 0
     rec = json.loads((tmp_path / "simulation.json").read_text())
     assert rec["resolution"] == [16, 16] and len([f for f in rec["files"] if f.endswith(".exr")]) == 5
@@ -26,6 +27,22 @@ def test_simulate_writes_images_patterns_and_a_record(tmp_path):
     m = ms.SVBRDF.load(tmp_path / "material.png")
     want = ms.render(m, ms.pattern_family("monograd")[1:2], ms.Rig.from_scene(SCENE))[0, 0]
     torch.testing.assert_close(img, want, rtol=0.03, atol=1e-4)  # material.png is 8-bit
+
+
+@pytest.mark.mitsuba
+def test_simulate_renders_through_the_scene_plugins_by_default(tmp_path):
+    from mitsvbrdf import backend
+    if backend.find_libllvm() is None:
+        pytest.skip("no libLLVM >= 16 for the LLVM backend")
+    rc = main(["simulate", str(SCENE), "--material", str(EXAMPLE), "--patterns", "uniform",
+               "--out", str(tmp_path), "--resolution", "8", "--spp", "4096", "--quiet"])
+    assert rc == 0
+    rec = json.loads((tmp_path / "simulation.json").read_text())
+    assert rec["method"] == "mitsuba" and rec["settings"]["spp"] == 4096
+    img = torch.from_numpy(imageio.read_image(tmp_path / "image_00.exr")).permute(2, 0, 1)
+    m = ms.SVBRDF.load(tmp_path / "material.png")
+    want = ms.render(m, ms.pattern_family("uniform"), ms.Rig.from_scene(SCENE))[0, 0]
+    assert ((img - want).norm() / want.norm()).item() < 0.05
 
 
 def test_simulate_reports_a_missing_material_as_an_error(tmp_path, capsys):

@@ -625,7 +625,7 @@ def _build_paint(p: dict, variant: str, size: int) -> Layers:
     height = _sn(p, "c_peel", size, 3.0, 4.0, 40.0, unit="slope") * col(p["peel"])
     sparkle = _f(vals[:, 2] ** 2 * col(p["flake_ks"]))
     ks = lerp(torch.full_like(_c(p, "flake"), 1.0) * col(p["coat_ks"]).unsqueeze(1), _c(p, "flake"), sparkle)
-    kd = _c(p, "kd") * (1 - 0.5 * sparkle)
+    kd = _c(p, "kd") * (1 - 0.2 * sparkle)
     rough = col(p["rough"]) * (0.8 + 0.4 * vals[:, 1])
     return Layers(height, kd, rough, ks, slope=slope)
 
@@ -841,7 +841,7 @@ def _default_chunk(size: int, device: torch.device) -> int:
 
 def generate(n: int, size: int = 256, seed: int = 0, families: Sequence[str] | None = None,
              device: str | torch.device | None = None, *, start: int = 0, bump: float = 1.0,
-             chunk: int | None = None, threads: int | None = None) -> SVBRDF:
+             chunk: int | None = None, threads: int | None = 1) -> SVBRDF:
     """Materials ``start .. start + n - 1`` of stream ``seed`` as one SVBRDF (B = n).
 
     Args:
@@ -855,9 +855,9 @@ def generate(n: int, size: int = 256, seed: int = 0, families: Sequence[str] | N
         bump: global multiplier of every height field (1 = the generator's own relief; 0 = flat).
         chunk: materials built per vectorised call (default: a cache-friendly size on CPU).
         threads: torch intra-op threads on the CPU while generating (restored afterwards); None
-            keeps torch's setting. The build is many small tensor ops: on a busy or small machine
-            one thread per process (and DataLoader workers for parallelism) is often much faster
-            (see docs/benchmarks/procedural_coverage.md).
+            keeps torch's setting. The build is many small tensor ops, so the default is one
+            thread per process, with DataLoader workers for parallelism: measured 4x faster than
+            two threads on a busy 2-core machine (docs/benchmarks/procedural_coverage.md).
     Returns:
         :class:`SVBRDF` with maps (n, C, size, size), ``name`` ``"procedural:seed:start"``.
     """
@@ -873,7 +873,7 @@ def generate(n: int, size: int = 256, seed: int = 0, families: Sequence[str] | N
 
 def generate_indices(indices: Sequence[int], size: int = 256, seed: int = 0,
                      families: Sequence[str] | None = None, device: str | torch.device | None = None, *,
-                     bump: float = 1.0, chunk: int | None = None, threads: int | None = None,
+                     bump: float = 1.0, chunk: int | None = None, threads: int | None = 1,
                      name: str | None = None) -> SVBRDF:
     """Materials at arbitrary ``indices`` of stream ``seed`` (in that order), built in vectorised
     groups; arguments as for :func:`generate`."""

@@ -137,17 +137,25 @@ def main() -> None:
                f"{torch.get_num_threads()}" + (f", GPU {torch.cuda.get_device_name()}" if torch.cuda.is_available() else ""))
     print(machine, flush=True)
 
+    load_before = os.getloadavg()[0] if hasattr(os, "getloadavg") else float("nan")
     rows = throughput(32, 256, args.repeats, workers)
+    load_after = os.getloadavg()[0] if hasattr(os, "getloadavg") else float("nan")
     hist, per_family, fams, cov_s = coverage(args.n, args.size, batch=50, threads=1)
 
     lines = [f"Machine: {machine}.", "",
+             "Contact sheet of materials 24-47 (normal | diffuse | roughness | specular | reference render under a "
+             "uniform pattern): [procedural_preview.png](procedural_preview.png), made with `python -m mitsvbrdf "
+             "materials preview --n 24 --start 24 --tile 96 --columns 3 --out docs/benchmarks/procedural_preview.png`.",
+             "",
              "## Throughput (256 x 256, materials per second, median of "
              f"{args.repeats} batches after a warm-up; target >= 50/s on CPU for a batch of 32)", "",
              "| device | mode | intra-op threads | workers | batch | materials/s |", "|---|---|---:|---:|---:|---:|"]
     for r in rows:
         lines.append(f"| {r['device']} | {r['mode']} | {r['threads']} | {r['workers']} | {r['batch']} | "
                      f"**{r['materials_per_s']}** |")
-    lines += ["", "The generator is many small tensor ops per material: torch's intra-op threads help little and, on a "
+    lines += ["", f"System load average (1 min) before / after the timings: {load_before:.1f} / {load_after:.1f} "
+              f"on {cpus} CPUs (other processes share the machine; the multi-threaded figure swings most with it).",
+              "", "The generator is many small tensor ops per material: torch's intra-op threads help little and, on a "
               "machine whose cores are busy with other processes, cost a lot (threads wait for each other at every "
               "op); one thread per process (the default of `generate`) and DataLoader workers scale instead.", ""]
     lines += [f"## Coverage: {args.n} materials at {args.size} x {args.size} (stream seed 0; "

@@ -288,7 +288,7 @@ def _build_masonry(p: dict, variant: str, size: int) -> Layers:
     t4 = _f(top)
     kd = lerp(mortar, tile_c, t4)
     rough_t = col(p["rough"]) * (1.0 + col(p["rough_var"]) * (2 * cells[:, 7] - 1)) + 0.2 * dirt
-    rough = lerp(col(p["grout_rough"]) + 0 * top, rough_t, top)
+    rough = lerp(col(p["grout_rough"]), rough_t, top)
     ks = lerp(_c(p, "grout_ks"), _c(p, "ks"), t4)
     return Layers(height, kd, rough, ks)
 
@@ -613,7 +613,7 @@ def _build_paint(p: dict, variant: str, size: int) -> Layers:
         m4 = _f(mask)
         subn = _f(_unit_std(sub)).clamp(-2, 2)
         kd = lerp(_c(p, "sub_kd") * (1 + 0.15 * subn), _c(p, "paint"), m4)
-        rough = lerp(col(p["sub_rough"]) + 0 * mask, col(p["paint_rough"]) + 0 * mask, mask)
+        rough = lerp(col(p["sub_rough"]), col(p["paint_rough"]), mask)
         ks = lerp(_c(p, "sub_ks"), _c(p, "paint_ks"), m4)
         return Layers(height, kd, rough, ks)
     x, y = grid(size, p["n"].device)
@@ -738,7 +738,7 @@ def _build_mixture(p: dict, variant: str, size: int) -> Layers:
     an, bn = _f(_unit_std(a)), _f(_unit_std(b))
     kd = lerp(_c(p, "kd_a") * (1 + 0.08 * an.clamp(-2, 2)), _c(p, "kd_b") * (1 + 0.15 * bn.clamp(-2, 2)), m4)
     kd = kd * _f(1 - 0.5 * pores)
-    rough = lerp(col(p["rough_a"]) + 0 * mask, col(p["rough_b"]) + 0 * mask, mask) + 0.2 * pores
+    rough = lerp(col(p["rough_a"]), col(p["rough_b"]), mask) + 0.2 * pores
     ks = lerp(_c(p, "ks_a"), _c(p, "ks_b"), m4)
     return Layers(height, kd, rough, ks)
 
@@ -924,8 +924,7 @@ def _finish(lay: Layers, relief: Tensor, size: int) -> dict[str, Tensor]:
     shape = (B, 3, size, size)
     slope = None if lay.slope is None else lay.slope * relief.view(-1, 1, 1, 1)
     normal = height_to_normal(lay.height * col(relief), slope)
-    rough = lay.rough.reshape(B, 1, size, size) if lay.rough.numel() == B * size * size else \
-        lay.rough.expand(B, size, size).unsqueeze(1)
+    rough = lay.rough.expand(B, size, size).unsqueeze(1)
     return {"normal": normal, "diffuse": lay.kd.expand(shape).clamp(0.0, 1.0),
             "roughness": rough.clamp(ROUGHNESS_MIN, 1.0), "specular": lay.ks.expand(shape).clamp(0.0, 1.0)}
 

@@ -6,6 +6,7 @@ Modules:
     augment     flips / 90-degree rotations / crops / albedo and roughness jitter that keep normals right
     datasets    torch Datasets: the procedural stream, Deschaintre-format strips, folders of maps
     preview     contact sheets of materials (maps + a reference rendering) for looking at them
+    stats       coverage statistics (roughness, albedos, slopes) of a set of materials
 """
 
 from .procedural import FAMILIES, family_of, generate, generate_indices, height_to_normal, material

@@ -148,6 +148,8 @@ class ImportanceIntegrator(mi.SamplingIntegrator):
 
         sampler = _LaneSampler(mi.UInt32(seed) + b, k)
         values = self.direct(scene, sampler, si, ok, first=b * P, count=P)
+        # One kernel for all 3P channels; reduced one by one they would each re-trace the paths.
+        dr.eval(values)
         chans = [dr.block_sum(c, spp) / spp for val in values for c in (val.x, val.y, val.z)]
         # chans[p * 3 + c] has batch * H * W entries ordered (b, row, col).
         hw = H * W

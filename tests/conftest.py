@@ -8,6 +8,16 @@ import torch
 import mitsvbrdf as ms
 
 
+@pytest.fixture(scope="module")
+def one_torch_thread():
+    """One intra-op thread for a module: the procedural generator is many small ops, and extra
+    threads only wait for each other on a busy 2-core machine."""
+    prev = torch.get_num_threads()
+    torch.set_num_threads(1)
+    yield
+    torch.set_num_threads(prev)
+
+
 @pytest.fixture(scope="session")
 def rig() -> ms.Rig:
     return ms.Rig.from_scene()

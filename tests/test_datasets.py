@@ -26,12 +26,7 @@ MAPS = ("normal", "diffuse", "roughness", "specular")
 SYMMETRIES = [(k, h, False) for k in range(4) for h in (False, True)] + [(0, False, True), (1, False, True)]
 
 
-@pytest.fixture(autouse=True, scope="module")
-def one_thread():
-    prev = torch.get_num_threads()
-    torch.set_num_threads(1)
-    yield
-    torch.set_num_threads(prev)
+pytestmark = pytest.mark.usefixtures("one_torch_thread")
 
 
 @pytest.fixture(scope="module")

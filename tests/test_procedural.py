@@ -16,13 +16,7 @@ from mitsvbrdf.errors import MaterialError
 MAPS = ("normal", "diffuse", "roughness", "specular")
 
 
-@pytest.fixture(autouse=True, scope="module")
-def one_thread():
-    """The generator is many small ops; one intra-op thread keeps the tests fast on busy machines."""
-    prev = torch.get_num_threads()
-    torch.set_num_threads(1)
-    yield
-    torch.set_num_threads(prev)
+pytestmark = pytest.mark.usefixtures("one_torch_thread")
 
 
 @pytest.fixture(scope="module")

@@ -10,7 +10,7 @@ Parameters:
 
 Two entry points:
     * ``sample``: the standard SamplingIntegrator interface (``mi.render`` through the scene's
-      sensor); returns pattern 0 and, as AOVs, all 3P channels.
+      perspective sensor, as a real photo would see the sample); renders pattern 0.
     * :meth:`render_texels`: the texel-grid image of mitsvbrdf (pixel (i, j) = texel (i, j) of the
       sample, seen from the camera's centre of projection), (P, 3, H, W), used by
       ``mitsvbrdf.render(..., method="mitsuba")``.
@@ -104,9 +104,8 @@ class ImportanceIntegrator(mi.SamplingIntegrator):
         si = scene.ray_intersect(ray, active)
         valid = active & si.is_valid()
         on_sample = valid & (si.emitter(scene) == None)  # noqa: E711 (Dr.Jit pointer comparison)
-        values = self.direct(scene, sampler, si, on_sample)
-        aovs = [c for v in values for c in (v.x, v.y, v.z)]
-        return values[0], valid, aovs
+        values = self.direct(scene, sampler, si, on_sample, count=1)
+        return values[0], valid, []
 
     def aov_names(self):
         return []

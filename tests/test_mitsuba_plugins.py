@@ -254,3 +254,17 @@ def test_scene_with_an_unknown_parameter_is_a_clear_error(rig, tmp_path):
                                               '<float name="intensity" value="1.0"/><float name="intensty" value="2"/>'))
     with pytest.raises(SceneError, match="intensty"):
         ms.render(flat_material(4), pt.uniform(), ms.Rig.from_scene(path), method="mitsuba", spp=1)
+
+
+def test_mi_render_through_the_scene_camera_sees_the_lit_sample(mi, rig):
+    """The standard SamplingIntegrator path: the centre pixel of the perspective image looks at the
+    sample's centre and agrees with the reference at the centre texel (constant material)."""
+    scene = mi.load_file(str(SCENE), resolution=9)
+    params = mi.traverse(scene)
+    params["sample.bsdf.roughness"] = mi.TensorXf(np.full((1, 1, 1), 0.5, np.float32))
+    params.update()
+    img = np.array(mi.render(scene, spp=4096))
+    assert img.shape == (9, 9, 3) and np.isfinite(img).all() and (img >= 0).all()
+    m = flat_material(9, diffuse=0.5, specular=0.04, roughness=0.5)
+    want = ms.render(m, pt.uniform(), rig)[0, 0, :, 4, 4].numpy()
+    np.testing.assert_allclose(img[4, 4], want, rtol=0.03)

@@ -1,0 +1,89 @@
+"""Closed-form integral of a clamped cosine over a spherical polygon, with horizon clipping.
+
+For directions expressed in a local frame whose +z is the normal, the cosine-weighted solid angle
+of the polygon with vertices p_0..p_{K-1} (vectors from the shading point, any length), clipped
+to the upper hemisphere, is
+
+    E = (1 / 2 pi) | sum_k theta_k (p_k x p_{k+1})_z / |p_k x p_{k+1}| |,
+
+theta_k the angle between p_k and p_{k+1} (Lambert's formula). ``E`` is the form factor of the
+polygon: (1 / pi) times the integral of (z . w)^+ over it, so a polygon covering the hemisphere
+gives 1. This is exact, which is what the LTC renderer builds on (Heitz et al. 2016): the diffuse
+lobe uses it directly, the specular lobe after a linear transform of the vertices.
+
+Clipping works for convex polygons (LCD cells and the LCD itself): each edge keeps its visible
+part, and when the polygon crosses the horizon one closing edge runs along it from the exit to
+the entry point. Everything is vectorised over leading dimensions; no Python loop over polygons.
+"""
+
+from __future__ import annotations
+
+import math
+
+import torch
+from torch import Tensor
+
+
+def _edge_integral(p: Tensor, q: Tensor) -> Tensor:
+    """theta (p x q)_z / |p x q| for edges p -> q (..., 3); finite and differentiable when p ~ q."""
+    pn = p / torch.linalg.vector_norm(p, dim=-1, keepdim=True).clamp_min(1e-20)
+    qn = q / torch.linalg.vector_norm(q, dim=-1, keepdim=True).clamp_min(1e-20)
+    cross = torch.linalg.cross(pn, qn, dim=-1)
+    s = torch.linalg.vector_norm(cross, dim=-1)
+    c = (pn * qn).sum(-1)
+    theta = torch.atan2(s, c)
+    # theta / s -> 1 as the edge shrinks; the clamp only guards the division.
+    return torch.where(s > 1e-12, theta / s.clamp_min(1e-12), torch.ones_like(s)) * cross[..., 2]
+
+
+def clipped_polygon_form_factor(vertices: Tensor) -> Tensor:
+    """Form factor of convex polygons clipped to z >= 0.
+
+    Args:
+        vertices: (..., K, 3) polygon vertices relative to the shading point, in the local frame
+            (+z = normal), in order around the polygon (either orientation).
+    Returns:
+        (...) form factors in [0, 1].
+    """
+    a = vertices
+    b = torch.roll(vertices, shifts=-1, dims=-2)
+    za, zb = a[..., 2], b[..., 2]
+    a_up, b_up = za > 0, zb > 0
+    # Point where the edge crosses z = 0 (only used where it does).
+    t = (za / torch.where(a_up != b_up, za - zb, torch.ones_like(za))).unsqueeze(-1)
+    cross_pt = a + t * (b - a)
+    start = torch.where(a_up.unsqueeze(-1), a, cross_pt)
+    end = torch.where(b_up.unsqueeze(-1), b, cross_pt)
+    visible = a_up | b_up
+    total = torch.where(visible, _edge_integral(start, end), torch.zeros_like(za)).sum(-1)
+    # Closing edge along the horizon from the exit point (up -> down) to the entry (down -> up).
+    exits = (a_up & ~b_up).unsqueeze(-1)
+    entries = (~a_up & b_up).unsqueeze(-1)
+    exit_pt = torch.where(exits, cross_pt, torch.zeros_like(cross_pt)).sum(-2)
+    entry_pt = torch.where(entries, cross_pt, torch.zeros_like(cross_pt)).sum(-2)
+    crosses = exits.any(-2).squeeze(-1) & entries.any(-2).squeeze(-1)
+    total = total + torch.where(crosses, _edge_integral(exit_pt, entry_pt), torch.zeros_like(total))
+    return total.abs() / (2.0 * math.pi)
+
+
+def lcd_cell_form_factors(x: Tensor, n: Tensor, wo: Tensor, cell_corners: Tensor) -> Tensor:
+    """Exact per-cell diffuse kernels: the form factor of every LCD cell seen from each point.
+
+    ``K[x, c] = (1 / pi) * integral over cell c of (n . w_i)^+ dw_i``, zero where the view is
+    below the shading horizon (n . w_o <= 0), i.e. the quantity the reference renderer integrates
+    by quadrature for the diffuse lobe without emission decay.
+
+    Args:
+        x, n, wo: (N, 3) positions (metres), unit shading normals, unit view directions.
+        cell_corners: (C, 4, 3) cell corners in order (e.g. ``Rig.lcd_cell_corners().reshape(-1, 4, 3)``).
+    Returns:
+        (N, C) form factors.
+    """
+    from ..brdf import tangent_frame
+
+    t, b = tangent_frame(n)
+    frame = torch.stack([t, b, n], 1)  # (N, 3, 3), rows = local axes
+    rel = cell_corners[None] - x[:, None, None]  # (N, C, 4, 3)
+    local = torch.einsum("nak,ncvk->ncva", frame, rel)
+    ff = clipped_polygon_form_factor(local)
+    return torch.where(((n * wo).sum(-1) > 0)[:, None], ff, torch.zeros_like(ff))

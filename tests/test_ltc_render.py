@@ -56,3 +56,25 @@ def test_values_and_gradients_are_finite_for_grazing_normals(rig):
     img = render_ltc(m, p, rig, IdentityTable())
     img.sum().backward()
     assert torch.isfinite(img).all() and torch.isfinite(m.normal.grad).all() and torch.isfinite(p.grad).all()
+
+
+def test_prefiltered_mode_is_exact_for_a_uniform_pattern(rig):
+    m = textured_material(8)
+    p = pt.uniform(value=0.7)
+    exact = render_ltc(m, p, rig, IdentityTable(), mode="exact")
+    pre = render_ltc(m, p, rig, IdentityTable(), mode="prefiltered")
+    torch.testing.assert_close(pre, exact, rtol=1e-4, atol=1e-7)
+
+
+def test_prefiltered_mode_is_differentiable_in_the_patterns(rig):
+    m = textured_material(8)
+    p = pt.random(n=2, seed=1).requires_grad_(True)
+    render_ltc(m, p, rig, IdentityTable(), mode="prefiltered").sum().backward()
+    assert torch.isfinite(p.grad).all() and p.grad.abs().sum() > 0
+
+
+def test_prefiltered_mode_refuses_emission_decay(rig):
+    import pytest
+    with pytest.raises(ValueError, match="decay"):
+        render_ltc(textured_material(4), pt.uniform(), rig.with_display(decay_cos_power=2.0), IdentityTable(),
+                   mode="prefiltered")

@@ -21,7 +21,7 @@ import torch
 from torch import Tensor
 
 from ..rig import Rig
-from .polygon import clipped_polygon_form_factor, lcd_cell_form_factors
+from .polygon import clipped_polygon_form_factor, clipped_polygon_vector_form_factor, lcd_cell_form_factors
 
 
 def view_frame(n: Tensor, wo: Tensor) -> tuple[Tensor, Tensor]:
@@ -54,12 +54,75 @@ def ltc_cell_integrals(x: Tensor, n: Tensor, wo: Tensor, m_inv: Tensor, cell_cor
     return torch.where((cos_v > 0)[:, None], e, torch.zeros_like(e))
 
 
-def render_ltc(svbrdf, patterns: Tensor, rig: Rig, table, *, lobes: str = "both") -> Tensor:
+def pattern_pyramid(radiance: Tensor) -> list[Tensor]:
+    """Box-filtered mip levels of per-cell radiance (..., 3, h, w), finest first, down to 1 x 1."""
+    lead = radiance.shape[:-3]
+    x = radiance.reshape(-1, 3, *radiance.shape[-2:])
+    levels = [x]
+    while max(levels[-1].shape[-2:]) > 1:
+        levels.append(torch.nn.functional.avg_pool2d(levels[-1], 2, ceil_mode=True))
+    return [lv.reshape(*lead, 3, *lv.shape[-2:]) for lv in levels]
+
+
+def sample_pyramid(levels: list[Tensor], uv: Tensor, lod: Tensor) -> Tensor:
+    """Trilinear lookup: levels of (P, 3, h_k, w_k), uv (N, 2) in [0, 1] (u along columns),
+    lod (N,) in [0, len(levels) - 1]; returns (N, P, 3)."""
+    grid = (2.0 * uv - 1.0).view(1, -1, 1, 2)
+    samples = []
+    for lv in levels:
+        img = lv.reshape(1, -1, *lv.shape[-2:])
+        s = torch.nn.functional.grid_sample(img, grid, mode="bilinear", padding_mode="border", align_corners=False)
+        samples.append(s.view(lv.shape[0], 3, -1).permute(2, 0, 1))
+    stack = torch.stack(samples, 0)  # (L, N, P, 3)
+    lod = lod.clamp(0, len(levels) - 1)
+    lo = lod.floor().long().clamp(max=len(levels) - 1)
+    hi = (lo + 1).clamp(max=len(levels) - 1)
+    f = (lod - lo.to(lod.dtype))[:, None, None]
+    idx = torch.arange(uv.shape[0], device=uv.device)
+    return stack[lo, idx] * (1 - f) + stack[hi, idx] * f
+
+
+def prefiltered_lookup(x: Tensor, n: Tensor, wo: Tensor, m_inv: Tensor, spread: Tensor, rig: Rig,
+                       levels: list[Tensor]) -> tuple[Tensor, Tensor]:
+    """One LTC polygon integral over the whole LCD and one prefiltered radiance fetch per point.
+
+    The fetch point is where the LTC's average direction (its vector form factor, mapped back by
+    M) meets the LCD; the level of detail matches a footprint of half-angle ``spread`` (radians)
+    at that distance. Returns (E (N,), radiance (N, P, 3)).
+    """
+    lcd = rig.lcd_geometry(x.device, x.dtype)
+    corners = rig.lcd_corners.to(x.device, x.dtype)
+    frame, cos_v = view_frame(n, wo)
+    local = torch.einsum("nak,vk->nva", frame, corners) - torch.einsum("nak,nk->na", frame, x)[:, None]
+    f = clipped_polygon_vector_form_factor(torch.einsum("nab,nvb->nva", m_inv, local))
+    e = torch.where(cos_v > 0, f[:, 2].abs(), torch.zeros_like(cos_v))
+    f = f * torch.where(f[:, 2:] < 0, -1.0, 1.0)
+    d = torch.linalg.solve(m_inv, f.unsqueeze(-1)).squeeze(-1)
+    d = torch.nn.functional.normalize(torch.einsum("nak,na->nk", frame, d), dim=-1)
+    denom = (d @ lcd.normal)
+    dist = ((lcd.origin - x) @ lcd.normal) / torch.where(denom < -1e-6, denom, -torch.ones_like(denom))
+    rel = x + dist[:, None] * d - lcd.origin
+    uv = torch.stack([rel @ lcd.edge_u / (lcd.edge_u @ lcd.edge_u),
+                      rel @ lcd.edge_v / (lcd.edge_v @ lcd.edge_v)], -1).clamp(0, 1)
+    h, w = rig.lcd_cells
+    cell = torch.sqrt(lcd.area / (h * w))
+    footprint = 2.0 * dist.abs() * torch.tan(spread.clamp(1e-4, 1.4))
+    lod = torch.log2((footprint / cell).clamp_min(1.0))
+    return e, sample_pyramid(levels, uv, lod)
+
+
+def render_ltc(svbrdf, patterns: Tensor, rig: Rig, table, *, lobes: str = "both",
+               mode: str = "exact") -> Tensor:
     """Render B materials under P patterns with the LTC approximation; (B, P, 3, H, W).
 
     ``table`` provides ``lookup(roughness (N,), cos_theta_v (N,)) -> (m_inv (N, 3, 3), a_one (N,),
-    a_schlick (N,))`` (see :mod:`mitsvbrdf.render.ltc_fit`).
+    a_schlick (N,))`` (see :mod:`mitsvbrdf.render.ltc_fit`). ``mode``: "exact" sums the polygon
+    integral over every LCD cell; "prefiltered" integrates the whole LCD once and multiplies by a
+    fetch from a box-filtered pattern pyramid (the textured-light LTC of Heitz et al. 2016, and of
+    the paper's training renderer), with the cosine lobe for the diffuse term.
     """
+    if mode not in ("exact", "prefiltered"):
+        raise ValueError(f"mode must be 'exact' or 'prefiltered', got {mode!r}")
     rig.check_patterns(patterns)
     B = svbrdf.batch_size
     H, W = svbrdf.resolution
@@ -83,6 +146,11 @@ def render_ltc(svbrdf, patterns: Tensor, rig: Rig, table, *, lobes: str = "both"
                               (torch.arange(w, device=dev, dtype=dt) + 0.5) / w, indexing="ij")
         decay = rig.display.decay(torch.stack([u, v], -1).reshape(1, -1, 2), cos_e)
     step = max(1, (1 << 20) // corners.shape[0])  # pixels per chunk: ~1M polygon integrals
+    if mode == "prefiltered":
+        if decay is not None:
+            raise ValueError("mode='prefiltered' does not model emission decay; use mode='exact'")
+        h, w = rig.lcd_cells
+        levels = [pattern_pyramid(rad[b].reshape(P, 3, h, w)) for b in range(B)]
     out = []
     for b in range(B):
         maps = [m[b].reshape(m.shape[1], -1).t() for m in (svbrdf.normal, svbrdf.diffuse, svbrdf.specular,
@@ -93,6 +161,20 @@ def render_ltc(svbrdf, patterns: Tensor, rig: Rig, table, *, lobes: str = "both"
             xs, ws = x[s:s + step], wo[s:s + step]
             dec = None if decay is None else decay[s:s + step]
             img = torch.zeros(xs.shape[0], P, 3, dtype=dt, device=dev)
+            if mode == "prefiltered":
+                eye = torch.eye(3, dtype=dt, device=dev).expand(xs.shape[0], 3, 3)
+                if lobes != "specular":
+                    # 0.3 rad: the footprint that fitted MonoGrad + random patterns best in a sweep.
+                    e, lr = prefiltered_lookup(xs, n, ws, eye, torch.full_like(r[:, 0], 0.3), rig, levels[b])
+                    img = img + (kd * (1 - ks))[:, None] * e[:, None, None] * lr
+                if lobes != "diffuse":
+                    m_inv, a_one, a_s = table.lookup(r[:, 0], (n * ws).sum(-1))
+                    spread = 2.0 * torch.atan((r[:, 0] ** 2).clamp_min(1e-4))
+                    e, lr = prefiltered_lookup(xs, n, ws, m_inv, spread, rig, levels[b])
+                    scale = ks * (a_one - a_s)[:, None] + a_s[:, None]
+                    img = img + scale[:, None] * e[:, None, None] * lr
+                rows.append(img)
+                continue
             if lobes != "specular":
                 e = lcd_cell_form_factors(xs, n, ws, corners)
                 e = e if dec is None else e * dec

@@ -24,16 +24,44 @@ import torch
 from torch import Tensor
 
 
-def _edge_integral(p: Tensor, q: Tensor) -> Tensor:
-    """theta (p x q)_z / |p x q| for edges p -> q (..., 3); finite and differentiable when p ~ q."""
+def _edge_vector(p: Tensor, q: Tensor) -> Tensor:
+    """theta (p x q) / |p x q| for edges p -> q (..., 3); finite and differentiable when p ~ q."""
     pn = p / torch.linalg.vector_norm(p, dim=-1, keepdim=True).clamp_min(1e-20)
     qn = q / torch.linalg.vector_norm(q, dim=-1, keepdim=True).clamp_min(1e-20)
     cross = torch.linalg.cross(pn, qn, dim=-1)
-    s = torch.linalg.vector_norm(cross, dim=-1)
-    c = (pn * qn).sum(-1)
+    s = torch.linalg.vector_norm(cross, dim=-1, keepdim=True)
+    c = (pn * qn).sum(-1, keepdim=True)
     theta = torch.atan2(s, c)
     # theta / s -> 1 as the edge shrinks; the clamp only guards the division.
-    return torch.where(s > 1e-12, theta / s.clamp_min(1e-12), torch.ones_like(s)) * cross[..., 2]
+    return torch.where(s > 1e-12, theta / s.clamp_min(1e-12), torch.ones_like(s)) * cross
+
+
+def clipped_polygon_vector_form_factor(vertices: Tensor) -> Tensor:
+    """Vector form factor (1 / 2 pi) sum_k theta_k (p_k x p_{k+1}) / |p_k x p_{k+1}| of convex
+    polygons clipped to z >= 0, signed by the polygon's orientation; (..., 3).
+
+    Its z component is the (signed) form factor; its direction is the polygon's average
+    cosine-weighted direction (used to look up prefiltered textures).
+    """
+    a = vertices
+    b = torch.roll(vertices, shifts=-1, dims=-2)
+    za, zb = a[..., 2], b[..., 2]
+    a_up, b_up = za > 0, zb > 0
+    # Point where the edge crosses z = 0 (only used where it does).
+    t = (za / torch.where(a_up != b_up, za - zb, torch.ones_like(za))).unsqueeze(-1)
+    cross_pt = a + t * (b - a)
+    start = torch.where(a_up.unsqueeze(-1), a, cross_pt)
+    end = torch.where(b_up.unsqueeze(-1), b, cross_pt)
+    visible = (a_up | b_up).unsqueeze(-1)
+    total = torch.where(visible, _edge_vector(start, end), torch.zeros_like(a)).sum(-2)
+    # Closing edge along the horizon from the exit point (up -> down) to the entry (down -> up).
+    exits = (a_up & ~b_up).unsqueeze(-1)
+    entries = (~a_up & b_up).unsqueeze(-1)
+    exit_pt = torch.where(exits, cross_pt, torch.zeros_like(cross_pt)).sum(-2)
+    entry_pt = torch.where(entries, cross_pt, torch.zeros_like(cross_pt)).sum(-2)
+    crosses = (exits.any(-2) & entries.any(-2))
+    total = total + torch.where(crosses, _edge_vector(exit_pt, entry_pt), torch.zeros_like(total))
+    return total / (2.0 * math.pi)
 
 
 def clipped_polygon_form_factor(vertices: Tensor) -> Tensor:
@@ -45,25 +73,7 @@ def clipped_polygon_form_factor(vertices: Tensor) -> Tensor:
     Returns:
         (...) form factors in [0, 1].
     """
-    a = vertices
-    b = torch.roll(vertices, shifts=-1, dims=-2)
-    za, zb = a[..., 2], b[..., 2]
-    a_up, b_up = za > 0, zb > 0
-    # Point where the edge crosses z = 0 (only used where it does).
-    t = (za / torch.where(a_up != b_up, za - zb, torch.ones_like(za))).unsqueeze(-1)
-    cross_pt = a + t * (b - a)
-    start = torch.where(a_up.unsqueeze(-1), a, cross_pt)
-    end = torch.where(b_up.unsqueeze(-1), b, cross_pt)
-    visible = a_up | b_up
-    total = torch.where(visible, _edge_integral(start, end), torch.zeros_like(za)).sum(-1)
-    # Closing edge along the horizon from the exit point (up -> down) to the entry (down -> up).
-    exits = (a_up & ~b_up).unsqueeze(-1)
-    entries = (~a_up & b_up).unsqueeze(-1)
-    exit_pt = torch.where(exits, cross_pt, torch.zeros_like(cross_pt)).sum(-2)
-    entry_pt = torch.where(entries, cross_pt, torch.zeros_like(cross_pt)).sum(-2)
-    crosses = exits.any(-2).squeeze(-1) & entries.any(-2).squeeze(-1)
-    total = total + torch.where(crosses, _edge_integral(exit_pt, entry_pt), torch.zeros_like(total))
-    return total.abs() / (2.0 * math.pi)
+    return clipped_polygon_vector_form_factor(vertices)[..., 2].abs()
 
 
 def lcd_cell_form_factors(x: Tensor, n: Tensor, wo: Tensor, cell_corners: Tensor) -> Tensor:

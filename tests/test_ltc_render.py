@@ -38,8 +38,9 @@ def test_identity_transform_integrates_the_clamped_cosine(rig):
 
 
 def test_view_frame_puts_the_view_in_the_xz_plane():
-    n = torch.nn.functional.normalize(torch.randn(50, 3), dim=-1)
-    wo = torch.nn.functional.normalize(torch.randn(50, 3), dim=-1)
+    g = torch.Generator().manual_seed(10)  # a seed that once exposed rounding noise at normal incidence
+    n = torch.nn.functional.normalize(torch.randn(50, 3, generator=g), dim=-1)
+    wo = torch.nn.functional.normalize(torch.randn(50, 3, generator=g), dim=-1)
     wo[0] = n[0]  # normal incidence
     frame, cos_v = view_frame(n, wo)
     local = torch.einsum("nak,nk->na", frame, wo)

@@ -33,7 +33,9 @@ def view_frame(n: Tensor, wo: Tensor) -> tuple[Tensor, Tensor]:
     fallback = torch.linalg.cross(n, torch.tensor([0.0, 1.0, 0.0], dtype=n.dtype, device=n.device).expand_as(n), dim=-1)
     fallback = torch.where(torch.linalg.vector_norm(fallback, dim=-1, keepdim=True) > 1e-6, fallback,
                            torch.tensor([1.0, 0.0, 0.0], dtype=n.dtype, device=n.device).expand_as(n))
-    x = torch.where(norm > 1e-7, x / norm.clamp_min(1e-12), torch.nn.functional.normalize(fallback, dim=-1))
+    # Below ~1e-4 the tangential part of w_o is rounding noise: use the fallback tangent there.
+    x = torch.where(norm > 1e-4, x / norm.clamp_min(1e-12), fallback)
+    x = torch.nn.functional.normalize(x - (x * n).sum(-1, keepdim=True) * n, dim=-1)  # re-orthogonalise
     y = torch.linalg.cross(n, x, dim=-1)
     return torch.stack([x, y, n], 1), cos_v
 

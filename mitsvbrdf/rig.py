@@ -277,6 +277,18 @@ class Rig:
         if lo < -1e-6 or hi > 1 + 1e-6:
             raise PatternError(f"pattern drive values must lie in [0, 1], got range [{lo:.4g}, {hi:.4g}]")
 
+    def material_radiance(self, patterns: Tensor, batch: int, device=None,
+                          dtype: torch.dtype = torch.float32) -> Tensor:
+        """Per-material cell radiance (B, P, 3, h * w) for renderers: patterns (P, 3, h, w) are
+        shared by all ``batch`` materials, (B, P, 3, h, w) give each its own."""
+        self.check_patterns(patterns)
+        rad = self.display.radiance(patterns.to(device, dtype))
+        if rad.ndim == 4:
+            rad = rad.unsqueeze(0).expand(batch, *rad.shape)
+        elif rad.shape[0] != batch:
+            raise PatternError(f"per-material patterns have batch {rad.shape[0]}, the SVBRDF has {batch}")
+        return rad.reshape(batch, rad.shape[1], 3, -1)
+
     def display_radiance(self, patterns: Tensor) -> Tensor:
         """Drive values (..., 3, h, w) -> emitted radiance per cell before decay, same shape."""
         self.check_patterns(patterns)

@@ -125,15 +125,11 @@ def render_ltc(svbrdf, patterns: Tensor, rig: Rig, table, *, lobes: str = "both"
     """
     if mode not in ("exact", "prefiltered"):
         raise ValueError(f"mode must be 'exact' or 'prefiltered', got {mode!r}")
-    rig.check_patterns(patterns)
     B = svbrdf.batch_size
     H, W = svbrdf.resolution
     dev, dt = svbrdf.normal.device, svbrdf.normal.dtype
-    rad = rig.display.radiance(patterns.to(dev, dt))
-    if rad.ndim == 4:
-        rad = rad.unsqueeze(0).expand(B, *rad.shape)
+    rad = rig.material_radiance(patterns, B, dev, dt)  # (B, P, 3, C)
     P = rad.shape[1]
-    rad = rad.reshape(B, P, 3, -1)
     corners = rig.lcd_cell_corners(dev).reshape(-1, 4, 3).to(dt)
     x = rig.surface_points((H, W), dev).reshape(-1, 3).to(dt)
     wo = rig.view_directions((H, W), dev).reshape(-1, 3).to(dt)

@@ -90,18 +90,12 @@ def render_reference(
         (B, P, 3, H, W) linear radiance, float32, on the maps' device.
     """
     settings = settings or QuadratureSettings()
-    rig.check_patterns(patterns)
     integrand = make_brdf_integrand(lobes)
     B = svbrdf.batch_size
     H, W = svbrdf.resolution
     dev, dt = svbrdf.normal.device, svbrdf.normal.dtype
-    radiance = rig.display.radiance(patterns.to(dev, dt))
-    if radiance.ndim == 4:
-        radiance = radiance.unsqueeze(0).expand(B, *radiance.shape)
-    elif radiance.shape[0] != B:
-        raise ValueError(f"per-material patterns have batch {radiance.shape[0]}, the SVBRDF has {B}")
+    radiance = rig.material_radiance(patterns, B, dev, dt)  # (B, P, 3, C)
     P = radiance.shape[1]
-    radiance = radiance.reshape(B, P, 3, -1)  # (B, P, 3, C)
     lcd = rig.lcd_geometry(dev, dt)
     x_all = rig.surface_points((H, W), dev).reshape(-1, 3).to(dt)
     wo_all = rig.view_directions((H, W), dev).reshape(-1, 3).to(dt)

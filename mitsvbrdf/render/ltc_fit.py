@@ -19,16 +19,18 @@ directional albedos of the lobe, A_1 (F = 1) and A_S (F = S, Schlick's weight), 
 Fit: per entry, Nelder-Mead on M = R_avg [[a, 0, b], [0, c, 0], [d, 0, 1]] (R_avg turns +z to
 the lobe's average direction), minimising the cubic error ``integral |p - D_o|^3`` between the
 normalised lobe p = fcos / A_1 and D_o, estimated with a fixed stratified sample set drawn from
-both distributions (balance-heuristic weights). Entries are warm-started along the table: from
-rough to smooth, and along theta_v from the previous entry (Heitz's order); normal incidence is
-fitted isotropic (c = a, b = d = 0).
+both distributions (balance-heuristic weights). The 64 entries of a roughness row are independent
+problems, fitted together by a batched Nelder-Mead (:func:`nelder_mead`); each row is warm-started
+from the fit of the next rougher row, the first (r = 1) from the cosine itself (M = I), because
+the parameters relative to the lobe's average direction change smoothly with roughness. Normal
+incidence is fitted isotropic (c = a, b = d = 0).
 
 Lookup (:class:`LtcTable`) interpolates M^-1 and the albedos bilinearly and returns the albedo
 scaled by 1 / H, H the LTC's mass above the horizon (closed form), so that a light covering the
 whole hemisphere reflects exactly A: the LTC's mass that leaks below the horizon at grazing
 views is put back in proportion instead of being lost.
 
-Reproduce the stored table (about 10 min on one core):
+Reproduce the stored table (31 min on one core of a shared 2-core machine):
 
     python -m mitsvbrdf.render.ltc_fit --out mitsvbrdf/render/ltc_table.npz
 """

@@ -1,0 +1,72 @@
+"""Re-rendering of materials under novel lighting, for evaluation and reports.
+
+Two kinds of novel lighting, both seen from the rig's camera on the sample's texel grid (like the
+capture images):
+
+* isotropic point lights above the sample: ``L_o = f(w_i, w_o) (n . w_i)^+ I / d^2`` at every texel
+  (exact, no sampling: one light direction per texel), ``I`` the intensity in W/sr (relative);
+* LCD patterns (e.g. step edges, :func:`mitsvbrdf.patterns.step_edges`) through any renderer.
+
+Images are linear radiance (B, L, 3, H, W). :func:`tonemap` maps them to display values for
+metrics that want a perceptual scale (SSIM, picture files).
+"""
+
+from __future__ import annotations
+
+import math
+
+import torch
+from torch import Tensor
+
+from .brdf import brdf
+from .rig import Rig
+
+
+def random_point_lights(n: int = 10, seed: int = 0, *, distance: tuple[float, float] = (0.15, 0.4),
+                        min_elevation_deg: float = 25.0) -> Tensor:
+    """(n, 3) point-light positions in metres above the sample centre, seeded.
+
+    Directions are uniform in solid angle above ``min_elevation_deg``; distances uniform in
+    ``distance`` (metres), so the lights sit well outside the 6 cm sample and above its horizon.
+    """
+    if n < 1:
+        raise ValueError(f"need at least one light, got n={n}")
+    g = torch.Generator().manual_seed(seed)
+    u = torch.rand(n, 3, generator=g, dtype=torch.float64)
+    z_min = math.sin(math.radians(min_elevation_deg))
+    z = z_min + (1.0 - z_min) * u[:, 0]
+    phi = 2.0 * math.pi * u[:, 1]
+    s = torch.sqrt(1.0 - z * z)
+    d = distance[0] + (distance[1] - distance[0]) * u[:, 2]
+    return (torch.stack([s * torch.cos(phi), s * torch.sin(phi), z], -1) * d[:, None]).float()
+
+
+def point_light_images(svbrdf, lights: Tensor, rig: Rig, intensity: float = 0.01) -> Tensor:
+    """Render B materials under each of L point lights (L, 3) (metres): (B, L, 3, H, W).
+
+    ``intensity`` in W/sr (relative units; 0.01 W/sr at 20 cm gives about the irradiance of the
+    LCD at full drive). Differentiable w.r.t. the maps.
+    """
+    h, w = svbrdf.resolution
+    dev, dt = svbrdf.normal.device, svbrdf.normal.dtype
+    x = rig.surface_points((h, w), dev).to(dt).permute(2, 0, 1)  # (3, H, W)
+    wo = rig.view_directions((h, w), dev).to(dt).permute(2, 0, 1)
+    out = []
+    for p in lights.to(dev, dt):
+        d = p.view(3, 1, 1) - x
+        dist2 = (d * d).sum(0, keepdim=True)
+        wi = d / dist2.sqrt()
+        f = brdf(svbrdf.normal, wi[None], wo[None], svbrdf.diffuse, svbrdf.specular, svbrdf.roughness,
+                 cosine=True, dim=-3)
+        out.append(f * (intensity / dist2)[None])
+    return torch.stack(out, 1)
+
+
+def tonemap(images: Tensor, exposure: float | None = None) -> Tensor:
+    """Linear radiance -> display values in [0, 1]: scale so the 99th percentile of each image set
+    maps to 1 (or by ``exposure``), clip, then the sRGB transfer curve."""
+    if exposure is None:
+        q = torch.quantile(images.detach().flatten().float()[:1_000_000], 0.99).clamp_min(1e-12)
+        exposure = 1.0 / float(q)
+    x = (images * exposure).clamp(0.0, 1.0)
+    return torch.where(x <= 0.0031308, 12.92 * x, 1.055 * x.clamp_min(1e-12) ** (1 / 2.4) - 0.055)

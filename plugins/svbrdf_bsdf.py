@@ -1,10 +1,14 @@
 """``svbrdf_ggx``: the project's BRDF (DESIGN.md) as a Mitsuba 3 BSDF with per-texel maps.
 
 Parameters (scene file or ``mi.load_dict``):
-    normal      rgb or (H, W, 3) tensor: tangent-space unit normals (x right, y up, z out)
-    diffuse     rgb or (H, W, 3) tensor: kd in [0, 1]
-    roughness   float or (H, W, 1) tensor: r in [0, 1], alpha = max(r^2, ALPHA_MIN)
-    specular    rgb or (H, W, 3) tensor: ks in [0, 1]
+    normal      rgb, (H, W, 3) tensor or image file: tangent-space unit normals (x right, y up, z out)
+    diffuse     rgb, (H, W, 3) tensor or image file: kd in [0, 1]
+    roughness   float, (H, W, 1) tensor or image file: r in [0, 1], alpha = max(r^2, ALPHA_MIN)
+    specular    rgb, (H, W, 3) tensor or image file: ks in [0, 1]
+
+An image file (``<string name="diffuse" value="diffuse.exr"/>``, resolved like Mitsuba's other
+files, relative to the scene) holds the values as they are used: linear EXR is the exact choice
+(normals as raw xyz vectors, a one-channel EXR for roughness); PNG values are read as stored.
 
 Maps are looked up at the texel containing the surface uv (nearest; texel (i, j) covers
 uv.x in [j/W, (j+1)/W), 1 - uv.y in [i/H, (i+1)/H), so row 0 is the top of the sample as in
@@ -33,7 +37,9 @@ def _as_map(props, name: str, channels: int, default) -> mi.TensorXf:
         v = default
     else:
         v = props[name]
-    if isinstance(v, mi.TensorXf):
+    if isinstance(v, str):
+        t = _read_map(v, name, channels)
+    elif isinstance(v, mi.TensorXf):
         t = v
     else:
         vals = [float(v[i]) for i in range(channels)] if channels > 1 and not isinstance(v, (int, float)) \
@@ -42,6 +48,20 @@ def _as_map(props, name: str, channels: int, default) -> mi.TensorXf:
     if t.ndim != 3 or t.shape[2] != channels:
         raise ValueError(f"svbrdf_ggx: '{name}' must be an (H, W, {channels}) tensor, got shape {t.shape}")
     return t
+
+
+def _read_map(filename: str, name: str, channels: int) -> mi.TensorXf:
+    import numpy as np
+
+    from mitsvbrdf.imageio import read_image
+
+    path = mi.file_resolver().resolve(filename)
+    a = read_image(str(path))
+    if a.shape[2] != channels:
+        a = a[..., :1] if channels == 1 else a[..., :3]
+    if a.shape[2] != channels:
+        raise ValueError(f"svbrdf_ggx: '{name}' file {path} has {a.shape[2]} channels, {channels} needed")
+    return mi.TensorXf(np.ascontiguousarray(a, dtype=np.float32))
 
 
 class SVBRDFGGX(mi.BSDF):

@@ -14,7 +14,14 @@ Families:
                  every channel see every gradient, so the group has the 5 patterns a capture uses.
     step_edges   n step edges for re-rendering evaluation: half the patterns switch from 0 to 1
                  along u at evenly spaced positions, the other half along v.
+    picked       5 hand-picked patterns (the paper's "Picked" group, with our own picks, since the
+                 published learned patterns are not available): white, a white half (u < 1/2), and
+                 three colour patterns with large colour variation: a hue sweep along u, a hue
+                 sweep along v, and an RGB checker of 4 x 4 blocks.
     random       i.i.d. uniform drive values from a seeded generator.
+
+Data-driven groups: :func:`pca_patterns` turns L_pdf maps of many materials into the paper's "PCA"
+group (mean and principal components, affinely mapped to [0, 1]).
 """
 
 from __future__ import annotations
@@ -27,7 +34,7 @@ from torch import Tensor
 
 from .errors import PatternError
 
-FAMILIES = ("uniform", "monograd", "colorgrad", "step_edges", "random")
+FAMILIES = ("uniform", "monograd", "colorgrad", "step_edges", "picked", "random")
 
 
 def _uv(h: int, w: int) -> tuple[Tensor, Tensor]:
@@ -73,6 +80,41 @@ def step_edges(h: int = 32, w: int = 32, n: int = 10) -> Tensor:
     return torch.stack(out)
 
 
+def _hue(t: Tensor) -> Tensor:
+    """(3, h, w) fully saturated hues for t in [0, 1] (h, w)."""
+    k = torch.arange(3, dtype=t.dtype).view(3, 1, 1)
+    return (1.0 - (((6.0 * t[None] + 4.0 * k) % 6.0 - 3.0).abs() - 1.0).clamp(0.0, 1.0))
+
+
+def picked(h: int = 32, w: int = 32) -> Tensor:
+    """(5, 3, h, w): white, white half u < 1/2, hue sweep along u, along v, RGB 4 x 4 checker."""
+    u, v = _uv(h, w)
+    block = ((u * 4).floor() + (v * 4).floor()).long() % 3
+    checker = torch.stack([(block == c).float() for c in range(3)])
+    return torch.stack([torch.ones(3, h, w), _grey((u < 0.5).float()), _hue(u), _hue(v), checker])
+
+
+def pca_patterns(lpdf: Tensor, n: int = 5) -> Tensor:
+    """The "PCA" group from L_pdf maps (N, 1, h, w) (or (N, h, w)) of N materials: (n, 3, h, w) grey.
+
+    Pattern 0 is the mean L_pdf, patterns 1.. the leading principal components of the centred
+    maps; each is mapped affinely to [0, 1] (a component's sign is arbitrary, so it is fixed to
+    make the brightest cell positive).
+    """
+    x = lpdf.reshape(lpdf.shape[0], -1).double()
+    if x.shape[0] < n:
+        raise PatternError(f"PCA of {n} patterns needs at least {n} L_pdf maps, got {x.shape[0]}")
+    mean = x.mean(0)
+    _, _, vt = torch.linalg.svd(x - mean, full_matrices=False)
+    comps = [mean] + [c * torch.sign(c[c.abs().argmax()]) for c in vt[: n - 1]]
+    hw = lpdf.shape[-2:]
+    out = []
+    for c in comps:
+        c = (c - c.min()) / (c.max() - c.min()).clamp_min(1e-12)
+        out.append(_grey(c.float().reshape(hw)))
+    return torch.stack(out)
+
+
 def random(h: int = 32, w: int = 32, n: int = 5, seed: int = 0) -> Tensor:
     """(n, 3, h, w) i.i.d. uniform drive values; the same seed gives the same patterns."""
     g = torch.Generator().manual_seed(int(seed))
@@ -82,7 +124,7 @@ def random(h: int = 32, w: int = 32, n: int = 5, seed: int = 0) -> Tensor:
 def pattern_family(name: str, h: int = 32, w: int = 32, **kwargs) -> Tensor:
     """Patterns of a named family (see the module docstring) on an h x w LCD."""
     builders = {"uniform": uniform, "monograd": monograd, "colorgrad": colorgrad,
-                "step_edges": step_edges, "random": random}
+                "step_edges": step_edges, "picked": picked, "random": random}
     if name not in builders:
         raise PatternError(f"unknown pattern family {name!r}; known: {', '.join(FAMILIES)}")
     return builders[name](h, w, **kwargs)

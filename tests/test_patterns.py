@@ -73,3 +73,29 @@ def test_unknown_family_and_wrong_file_shape_are_clear_errors(tmp_path):
 def test_rig_rejects_bad_patterns(rig, bad, match):
     with pytest.raises(PatternError, match=match):
         rig.check_patterns(bad)
+
+
+def test_picked_group_has_five_valid_patterns_with_colour_variation():
+    p = pt.pattern_family("picked")
+    assert p.shape == (5, 3, 32, 32)
+    assert p.min() >= 0 and p.max() <= 1
+    chroma = (p.max(1).values - p.min(1).values).mean((1, 2))
+    assert (chroma[2:] > 0.3).all() and (chroma[:2] == 0).all()
+
+
+def test_pca_patterns_recover_the_mean_and_the_dominant_direction():
+    g = torch.Generator().manual_seed(0)
+    u, _ = torch.meshgrid(torch.linspace(0, 1, 8), torch.linspace(0, 1, 8), indexing="ij")
+    base = torch.exp(-((u - 0.5) ** 2) * 10)
+    coef = torch.randn(64, generator=g)
+    lpdf = base + coef.view(-1, 1, 1) * u + 0.01 * torch.randn(64, 8, 8, generator=g)
+    p = pt.pca_patterns(lpdf, n=3)
+    assert p.shape == (3, 3, 8, 8) and p.min() >= 0 and p.max() <= 1
+    first = p[1, 0]
+    corr = torch.corrcoef(torch.stack([first.flatten(), u.flatten()]))[0, 1]
+    assert corr > 0.99  # the leading component is the varying ramp
+
+
+def test_pca_patterns_need_enough_maps():
+    with pytest.raises(PatternError, match="at least 5"):
+        pt.pca_patterns(torch.rand(3, 1, 8, 8))

@@ -1,0 +1,122 @@
+"""The adaptive acquisition pipeline (paper Fig. 2), for one material or a batch.
+
+    I_0 under L_0 -> initializer -> (normal, roughness) -> L_pdf -> G_l -> 4 adaptive patterns
+    -> capture I_1..I_4 (simulated through a renderer, or a real device) -> I^spec (separation)
+    -> G_sc -> SVBRDF maps
+
+The learned parts are injected as modules, so the same pipeline serves trained weights, the
+baselines and tests:
+
+* ``l0``: (3, h, w) drive values of the first pattern;
+* ``initializer(i0 (B, 3, H, W)) -> (B, 10, H, W)`` encoded maps (normal and roughness are used);
+* ``lighting(i0, lpdf (B, 1, h, w))`` -> an object with ``patterns`` (B, 4, 3, h, w) in [0, 1];
+* ``reconstructor(images (B, 5, 3, H, W), spec (B, 10, 3, H, W)) -> (B, 10, H, W)`` encoded maps.
+
+Images are linear radiance on the sample's texel grid. Single-material calls take and return
+tensors without the batch dimension.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import torch
+from torch import Tensor
+
+from .importance import importance
+from .render import render
+from .rig import Rig
+from .separation import separate_specular
+from .svbrdf import SVBRDF
+
+
+@dataclass
+class Acquisition:
+    """Everything one acquisition produced (tensors without batch dimension for one material)."""
+
+    patterns: Tensor        # (5, 3, h, w) drive values, L_0 first
+    images: Tensor          # (5, 3, H, W) linear radiance
+    lpdf: Tensor            # (1, h, w) the importance distribution the patterns were predicted from
+    initial: SVBRDF         # the initializer's estimate (normal and roughness drive L_pdf)
+    svbrdf: SVBRDF          # the reconstruction
+
+
+class AcquisitionPipeline(torch.nn.Module):
+    """Pattern prediction and reconstruction around injected networks (module docstring).
+
+    Args:
+        l0, initializer, lighting, reconstructor: see the module docstring.
+        rig: the capture rig (L_pdf and the separation need its geometry and display model).
+        lpdf_stride: texel stride of the L_pdf quadrature (4: 0.9 s for 256 x 256 on 2 cores).
+        lpdf_from: "initializer" (the method), or "uniform" (the paper's fixed-L_pdf ablation).
+    """
+
+    def __init__(self, l0: Tensor, initializer: torch.nn.Module, lighting: torch.nn.Module,
+                 reconstructor: torch.nn.Module, rig: Rig, *, lpdf_stride: int = 4,
+                 lpdf_from: str = "initializer"):
+        super().__init__()
+        if lpdf_from not in ("initializer", "uniform"):
+            raise ValueError(f"lpdf_from must be 'initializer' or 'uniform', got {lpdf_from!r}")
+        h, w = rig.lcd_cells
+        if tuple(l0.shape) != (3, h, w):
+            raise ValueError(f"l0 must be (3, {h}, {w}) for this rig, got {tuple(l0.shape)}")
+        self.register_buffer("l0", l0.detach().clone())
+        self.initializer, self.lighting, self.reconstructor = initializer, lighting, reconstructor
+        self.rig, self.lpdf_stride, self.lpdf_from = rig, lpdf_stride, lpdf_from
+
+    @torch.no_grad()
+    def predict_patterns(self, i0: Tensor) -> tuple[Tensor, Tensor, SVBRDF]:
+        """I_0 (B, 3, H, W) -> (adaptive patterns (B, 4, 3, h, w), L_pdf (B, 1, h, w), initial SVBRDF)."""
+        initial = maps_to_svbrdf(self.initializer(i0))
+        if self.lpdf_from == "uniform":
+            lpdf = torch.ones(i0.shape[0], 1, *self.rig.lcd_cells, device=i0.device, dtype=i0.dtype)
+        else:
+            lpdf = importance(initial.normal, initial.roughness, self.rig, texel_stride=self.lpdf_stride)
+        return self.lighting(i0, lpdf).patterns.clamp(0, 1), lpdf, initial
+
+    @torch.no_grad()
+    def reconstruct(self, images: Tensor, patterns: Tensor) -> SVBRDF:
+        """Images (B, 5, 3, H, W) under patterns (B, 5, 3, h, w) -> the reconstructed SVBRDF."""
+        spec = separate_specular(images, patterns, self.rig)
+        return maps_to_svbrdf(self.reconstructor(images, spec))
+
+    def all_patterns(self, adaptive: Tensor) -> Tensor:
+        """L_0 prepended to adaptive patterns (B, 4, 3, h, w) -> (B, 5, 3, h, w)."""
+        l0 = self.l0.to(adaptive)[None, None].expand(adaptive.shape[0], 1, *self.l0.shape)
+        return torch.cat([l0, adaptive], 1)
+
+    @torch.no_grad()
+    def acquire(self, capture, batch: int = 1) -> Acquisition | list[Acquisition]:
+        """Run the acquisition with ``capture(patterns (B, P, 3, h, w)) -> images (B, P, 3, H, W)``
+        (a renderer or a device): show L_0, predict, show the 4 adaptive patterns, reconstruct."""
+        l0 = self.l0[None, None].expand(batch, 1, *self.l0.shape)
+        i0 = capture(l0)[:, 0]
+        adaptive, lpdf, initial = self.predict_patterns(i0)
+        rest = capture(adaptive)
+        patterns = self.all_patterns(adaptive)
+        images = torch.cat([i0[:, None], rest], 1)
+        svbrdf = self.reconstruct(images, patterns)
+        out = [Acquisition(patterns[b], images[b], lpdf[b], initial[b], svbrdf[b]) for b in range(batch)]
+        return out[0] if batch == 1 else out
+
+    def simulate(self, svbrdf: SVBRDF, method: str = "mitsuba", spp: int = 64, seed: int = 0,
+                 noise=None) -> Acquisition | list[Acquisition]:
+        """Acquire ``svbrdf`` (B materials) through a renderer (and an optional noise model
+        ``noise(images, generator)``), with a fixed seed per capture step."""
+        g = torch.Generator(device=svbrdf.device).manual_seed(seed)
+        step = iter(range(1, 100))
+
+        def capture(patterns: Tensor) -> Tensor:
+            with torch.no_grad():
+                imgs = render(svbrdf, patterns, self.rig, method=method, spp=spp, seed=seed * 100 + next(step))
+            return imgs if noise is None else noise(imgs, g)
+
+        return self.acquire(capture, batch=svbrdf.batch_size)
+
+
+def maps_to_svbrdf(encoded: Tensor) -> SVBRDF:
+    """Network output (B, 10, H, W) -> a valid SVBRDF: values clipped to [0, 1] and the encoded
+    normal's z kept above 1/2, so that every decoded normal faces up."""
+    t = encoded.clamp(0.0, 1.0)
+    t = torch.cat([t[:, :2], t[:, 2:3].clamp_min(0.5 + 1e-3), t[:, 3:]], 1)
+    return SVBRDF.from_encoded(t)

@@ -1,0 +1,82 @@
+"""Evaluation of acquisition methods: metrics per material, tables, figures and the HTML index."""
+
+import csv
+
+import pytest
+import torch
+
+import mitsvbrdf as ms
+from mitsvbrdf.evaluation import Capture, Relighting, evaluate, fixed_pattern_method, summarize
+
+from conftest import textured_material
+
+
+def _oracle(gt):
+    """A method that returns the ground truth itself."""
+    return Capture(torch.zeros(1, 3, 32, 32), torch.zeros(1, 3, *gt.resolution), gt)
+
+
+def _flat(gt):
+    """A method that returns a grey, flat material whatever it sees."""
+    h, w = gt.resolution
+    return Capture(torch.zeros(1, 3, 32, 32), torch.zeros(1, 3, h, w),
+                   ms.SVBRDF.constant(diffuse=0.5, roughness=0.5, specular=0.04, size=(h, w)))
+
+
+@pytest.fixture()
+def relight(rig):
+    return Relighting.make(rig, n_lights=3, n_edges=2)
+
+
+def test_perfect_reconstruction_scores_zero_error_and_unit_ssim(rig, tmp_path, relight):
+    rows = evaluate({"oracle": _oracle}, [textured_material(16)], rig, tmp_path, relight=relight,
+                    figures=False, progress=False)
+    r = rows[0]
+    assert r["rmse_average"] == 0.0 and r["rerender_rmse"] == 0.0
+    assert r["ssim"] == pytest.approx(1.0)
+
+
+def test_a_worse_method_scores_worse_on_every_headline_metric(rig, tmp_path, relight):
+    rows = evaluate({"oracle": _oracle, "flat": _flat}, [textured_material(16, seed=2)], rig, tmp_path,
+                    relight=relight, figures=False, progress=False)
+    s = {x["method"]: x for x in summarize(rows)}
+    assert s["flat"]["rmse_average"] > s["oracle"]["rmse_average"]
+    assert s["flat"]["rerender_rmse"] > s["oracle"]["rerender_rmse"]
+    assert s["flat"]["ssim"] < s["oracle"]["ssim"]
+
+
+def test_outputs_tables_figures_and_index(rig, tmp_path, relight):
+    mats = [textured_material(16, seed=s) for s in range(2)]
+    evaluate({"oracle": _oracle, "flat": _flat}, mats, rig, tmp_path, relight=relight, progress=False)
+    with open(tmp_path / "metrics.csv") as f:
+        assert len(list(csv.DictReader(f))) == 4
+    md = (tmp_path / "summary.md").read_text()
+    assert "| oracle |" in md and "Normal" in md and "LPIPS skipped" in md
+    assert len(list((tmp_path / "figures").glob("*.png"))) == 2
+    assert "figures/material_001.png" in (tmp_path / "index.html").read_text()
+
+
+def test_fixed_pattern_baseline_sees_its_patterns(rig, tmp_path, relight):
+    seen = {}
+
+    def reconstructor(images, patterns):
+        seen["shape"] = tuple(images.shape)
+        return torch.full((1, 10, *images.shape[-2:]), 0.5)
+
+    method = fixed_pattern_method(ms.pattern_family("monograd"), reconstructor, rig, method="reference")
+    cap = method(textured_material(8))
+    assert seen["shape"] == (1, 5, 3, 8, 8)
+    assert cap.images.shape == (5, 3, 8, 8)
+
+
+def test_empty_material_set_is_refused(rig, tmp_path):
+    with pytest.raises(ValueError, match="no materials"):
+        evaluate({"oracle": _oracle}, [], rig, tmp_path, progress=False)
+
+
+def test_method_returning_another_resolution_is_refused(rig, tmp_path, relight):
+    def small(gt):
+        return _flat(ms.SVBRDF.constant(size=4))
+
+    with pytest.raises(ValueError, match="returned"):
+        evaluate({"small": small}, [textured_material(8)], rig, tmp_path, relight=relight, progress=False)

@@ -1,6 +1,8 @@
 """Command line interface: ``python -m mitsvbrdf <command> ...`` (or the ``mitsvbrdf`` script).
 
 Commands:
+    train CONFIG [--resume] [--set key=value ...] [--out DIR]
+        Train one stage of the method (init, stage1, stage2, finetune, fixed) from a TOML config.
     simulate SCENE --material PATH --patterns NAME_OR_FILE --out DIR
         Render the capture of a material under patterns through the scene's rig and display
         model; writes one EXR (linear radiance) and one tone-mapped PNG per pattern, the patterns
@@ -130,6 +132,20 @@ def cmd_materials_preview(args: argparse.Namespace) -> int:
     return 0
 
 
+def cmd_train(args: argparse.Namespace) -> int:
+    from .training import load_config, train
+
+    overrides = list(args.set or [])
+    if args.out:
+        overrides.append(f'out="{args.out}"')
+    cfg = load_config(args.config, overrides)
+    last = train(cfg, resume=args.resume, progress=not args.quiet)
+    if last:
+        print("last logged: " + ", ".join(f"{k}={v:.4g}" for k, v in last.items() if isinstance(v, float)))
+    print(f"outputs in {cfg.out}: checkpoint.pt, metrics.csv, loss.png, networks.pt")
+    return 0
+
+
 def build_parser() -> argparse.ArgumentParser:
     p = argparse.ArgumentParser(prog="mitsvbrdf", description=__doc__.split("\n")[0])
     sub = p.add_subparsers(dest="command", required=True)
@@ -168,6 +184,13 @@ def build_parser() -> argparse.ArgumentParser:
     m.add_argument("--pattern", default="uniform", help="pattern family or file; its first pattern is used")
     m.add_argument("--quiet", action="store_true", help="no progress bar")
     m.set_defaults(func=cmd_materials_preview)
+    t = sub.add_parser("train", help="train a stage from a TOML config (see train/ and docs/training.md)")
+    t.add_argument("config", help="config file, e.g. train/stage1-small.toml")
+    t.add_argument("--resume", action="store_true", help="continue from OUT/checkpoint.pt")
+    t.add_argument("--set", action="append", metavar="KEY=VALUE", help="override a config key, e.g. train.steps=10")
+    t.add_argument("--out", default="", help="output folder (overrides the config's out)")
+    t.add_argument("--quiet", action="store_true", help="no progress bar")
+    t.set_defaults(func=cmd_train)
     return p
 
 

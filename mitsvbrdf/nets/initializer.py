@@ -1,0 +1,46 @@
+"""The bootstrap of the acquisition (paper Sec. 3.2 "Discussion of bootstrapping"): a learned first
+pattern L_0 and a single-image network that estimates the maps from I_0. Trained jointly, they
+are also the single-pattern baseline ("LPL")."""
+
+from __future__ import annotations
+
+import math
+
+import torch
+from torch import Tensor, nn
+
+from .nafnet import NAFNet, normalize_images
+
+
+class LearnedPattern(nn.Module):
+    """One RGB pattern (1, 3, h, w) in [0, 1], parameterised through a sigmoid.
+
+    ``init``: "uniform" (drive 0.9 everywhere), "grey" (0.5) or a (3, h, w) tensor in (0, 1).
+    """
+
+    def __init__(self, cells: tuple[int, int] = (32, 32), init: str | Tensor = "uniform"):
+        super().__init__()
+        self.config = dict(cells=tuple(cells))
+        if isinstance(init, Tensor):
+            start = init.clamp(1e-3, 1 - 1e-3)
+        else:
+            value = {"uniform": 0.9, "grey": 0.5}.get(init)
+            if value is None:
+                raise ValueError(f"init must be 'uniform', 'grey' or a tensor, got {init!r}")
+            start = torch.full((3, *cells), value)
+        self.logits = nn.Parameter(torch.log(start / (1 - start)))
+
+    def forward(self) -> Tensor:
+        return torch.sigmoid(self.logits)[None]
+
+
+class Initializer(nn.Module):
+    """Single-image NAFNet: I_0 (B, 3, H, W) -> (B, 10, H, W) encoded maps in [0, 1]."""
+
+    def __init__(self, width: int = 16, enc_blocks: tuple[int, ...] = (1, 1, 1), middle_blocks: int = 1):
+        super().__init__()
+        self.config = dict(width=width, enc_blocks=tuple(enc_blocks), middle_blocks=middle_blocks)
+        self.net = NAFNet(3, 10, width, enc_blocks, middle_blocks)
+
+    def forward(self, i0: Tensor) -> Tensor:
+        return torch.sigmoid(self.net(normalize_images(i0)))

@@ -1,0 +1,212 @@
+"""Training configuration: TOML files -> validated dataclasses (data, not code).
+
+Layout (every key optional except ``stage``; defaults below)::
+
+    stage = "stage1"              # init | stage1 | stage2 | finetune | fixed
+    seed = 0
+    out = "runs/stage1"           # relative paths are relative to the current directory
+    scene = "scenes/lcd_rig.xml"
+
+    [data]     source = "procedural" | "strips" | "folders"; root; size; length; families
+    [render]   method = "mitsuba" | "ltc" | "reference"; spp; [render.noise] shot, read, bits
+    [model]    the stage's own options (see mitsvbrdf.training.stages: *Model dataclasses)
+    [loss]     the stage's loss weights (*Loss dataclasses)
+    [train]    steps, batch, lr, lr_min, weight_decay, grad_clip, checkpoint_every, log_every, device
+    [pretrained]  networks = "runs/init/networks.pt"  (an earlier stage's export)
+
+Procedural materials are drawn by global index from the generator seeded with ``seed``; the
+evaluation's held-out set uses seeds >= 1_000_000 (:data:`TEST_SEED_BASE`), never used here.
+Errors name the offending key path: ``train.stpes: unknown key (did you mean 'steps'?)``.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import difflib
+import tomllib
+import typing
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+from ..errors import MitsvbrdfError
+
+TEST_SEED_BASE = 1_000_000
+
+
+class ConfigError(MitsvbrdfError):
+    """A training configuration that cannot be used; the message names the key."""
+
+
+@dataclass
+class DataConfig:
+    source: str = "procedural"
+    root: str = ""
+    size: int = 64
+    length: int = 100_000
+    families: list[str] = field(default_factory=list)
+
+
+@dataclass
+class NoiseConfig:
+    shot: float = 0.0      # photons per unit radiance at full exposure is 1 / shot (0: no shot noise)
+    read: float = 0.0      # read-noise standard deviation, in units of the white level
+    bits: int = 0          # quantisation bits (0: none)
+    white: float = 1.0     # radiance mapped to the sensor's white level
+
+
+@dataclass
+class RenderConfig:
+    method: str = "mitsuba"
+    spp: int = 4
+    noise: NoiseConfig = field(default_factory=NoiseConfig)
+
+
+@dataclass
+class TrainConfig:
+    steps: int = 200
+    batch: int = 4
+    lr: float = 2e-4
+    lr_min: float = 0.0
+    weight_decay: float = 0.0
+    grad_clip: float = 1.0
+    checkpoint_every: int = 50
+    log_every: int = 10
+    device: str = "auto"
+
+
+@dataclass
+class PretrainedConfig:
+    networks: str = ""
+
+
+@dataclass
+class Config:
+    stage: str
+    seed: int = 0
+    out: str = "runs/default"
+    scene: str = ""
+    data: DataConfig = field(default_factory=DataConfig)
+    render: RenderConfig = field(default_factory=RenderConfig)
+    model: Any = None
+    loss: Any = None
+    train: TrainConfig = field(default_factory=TrainConfig)
+    pretrained: PretrainedConfig = field(default_factory=PretrainedConfig)
+
+
+def _type_ok(value: Any, tp: Any) -> bool:
+    origin = typing.get_origin(tp)
+    if tp is float:
+        return isinstance(value, (int, float)) and not isinstance(value, bool)
+    if tp is int:
+        return isinstance(value, int) and not isinstance(value, bool)
+    if origin is list:
+        (inner,) = typing.get_args(tp) or (Any,)
+        return isinstance(value, list) and all(inner is Any or _type_ok(v, inner) for v in value)
+    if tp is Any:
+        return True
+    return isinstance(value, tp)
+
+
+def _type_name(tp: Any) -> str:
+    return getattr(tp, "__name__", str(tp)).replace("typing.", "")
+
+
+def build(cls: type, table: dict, path: str) -> Any:
+    """Dataclass ``cls`` from a TOML table; unknown keys and wrong types raise ConfigError."""
+    if not isinstance(table, dict):
+        raise ConfigError(f"{path}: expected a table, got {type(table).__name__}")
+    hints = typing.get_type_hints(cls)
+    fields = {f.name: f for f in dataclasses.fields(cls)}
+    for key in table:
+        if key not in fields:
+            close = difflib.get_close_matches(key, list(fields), n=1)
+            hint = f" (did you mean {close[0]!r}?)" if close else f" (known: {', '.join(fields)})"
+            raise ConfigError(f"{path}.{key}: unknown key{hint}".lstrip("."))
+    kwargs = {}
+    for name, f in fields.items():
+        if name not in table:
+            if f.default is dataclasses.MISSING and f.default_factory is dataclasses.MISSING:
+                raise ConfigError(f"{path}.{name}: missing required key".lstrip("."))
+            continue
+        value, tp = table[name], hints[name]
+        if dataclasses.is_dataclass(tp):
+            kwargs[name] = build(tp, value, f"{path}.{name}")
+        elif not _type_ok(value, tp):
+            raise ConfigError(f"{path}.{name}: expected {_type_name(tp)}, got {type(value).__name__} "
+                              f"({value!r})".lstrip("."))
+        else:
+            kwargs[name] = float(value) if tp is float else value
+    return cls(**kwargs)
+
+
+def parse_override(text: str) -> tuple[list[str], Any]:
+    """``train.steps=10`` -> (["train", "steps"], 10); values are parsed as TOML."""
+    if "=" not in text:
+        raise ConfigError(f"override {text!r} must look like key.path=value")
+    key, raw = text.split("=", 1)
+    try:
+        value = tomllib.loads(f"v = {raw}")["v"]
+    except tomllib.TOMLDecodeError:
+        value = raw  # a bare word: a string
+    return key.strip().split("."), value
+
+
+def load_config(path: str | Path | None = None, overrides: list[str] | None = None,
+                table: dict | None = None) -> Config:
+    """Read and validate a config file (or a ready ``table``), applying ``overrides``."""
+    from .stages import STAGES
+
+    if table is None:
+        p = Path(path)
+        if not p.exists():
+            raise ConfigError(f"{p}: no such config file")
+        try:
+            table = tomllib.loads(p.read_text())
+        except tomllib.TOMLDecodeError as e:
+            raise ConfigError(f"{p}: not valid TOML ({e})") from e
+    table = _deepcopy(table)
+    for o in overrides or []:
+        keys, value = parse_override(o)
+        node = table
+        for k in keys[:-1]:
+            node = node.setdefault(k, {})
+        node[keys[-1]] = value
+    stage = table.get("stage")
+    if stage not in STAGES:
+        raise ConfigError(f"stage: must be one of {', '.join(STAGES)}, got {stage!r}")
+    model, loss = table.pop("model", {}), table.pop("loss", {})
+    cfg = build(Config, table, "")
+    cfg.model = build(STAGES[stage].Model, model, "model")
+    cfg.loss = build(STAGES[stage].Loss, loss, "loss")
+    _check_values(cfg)
+    return cfg
+
+
+def _check_values(cfg: Config) -> None:
+    checks = [(cfg.data.source in ("procedural", "strips", "folders"), "data.source", "procedural, strips or folders"),
+              (cfg.render.method in ("mitsuba", "ltc", "reference"), "render.method", "mitsuba, ltc or reference"),
+              (cfg.train.device in ("auto", "cpu", "cuda"), "train.device", "auto, cpu or cuda"),
+              (cfg.train.steps >= 1, "train.steps", ">= 1"), (cfg.train.batch >= 1, "train.batch", ">= 1"),
+              (cfg.train.checkpoint_every >= 1, "train.checkpoint_every", ">= 1"),
+              (cfg.train.log_every >= 1, "train.log_every", ">= 1"), (cfg.data.size % 8 == 0, "data.size", "a multiple of 8"),
+              (cfg.render.spp >= 1, "render.spp", ">= 1"), (cfg.train.lr > 0, "train.lr", "> 0")]
+    for ok, key, want in checks:
+        if not ok:
+            raise ConfigError(f"{key}: must be {want}")
+    if cfg.data.source != "procedural" and not cfg.data.root:
+        raise ConfigError(f"data.root: needed for data.source = {cfg.data.source!r}")
+
+
+def _deepcopy(t: Any) -> Any:
+    if isinstance(t, dict):
+        return {k: _deepcopy(v) for k, v in t.items()}
+    if isinstance(t, list):
+        return [_deepcopy(v) for v in t]
+    return t
+
+
+def config_table(cfg: Config) -> dict:
+    """The config as plain data (for checkpoints and the run record)."""
+    return dataclasses.asdict(cfg)
+

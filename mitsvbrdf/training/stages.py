@@ -1,0 +1,281 @@
+"""The training stages (paper Sec. 3.3, 3.5 and Sec. 5 "Implementation details").
+
+Each stage is a module whose ``forward(batch, seed)`` renders the batch's captures through the
+configured renderer (Mitsuba by default, so G_l's gradients come through physically based
+rendering) and returns its scalar losses; ``"loss"`` is the one minimised.
+
+* ``init``: learned L_0 + initializer, L1 on all maps (also the single-pattern "LPL" baseline).
+* ``stage1``: G_l + G_p (per-pixel), L = lambda_c L_c + lambda_inv L_inv + lambda_r L_r, with L_0
+  and the initializer frozen (from ``init``).
+* ``stage2``: G_l (from stage 1) + G_sc with I^spec, lambda_inv = 0.05.
+* ``finetune``: G_sc alone on captures with G_l's patterns (G_l frozen), e.g. at higher spp.
+* ``fixed``: G_sc on a fixed pattern group (the baselines of the evaluation).
+
+Tensors: maps (B, C, H, W); patterns (B, P, 3, h, w) drive values; images (B, P, 3, H, W) linear.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+from typing import Callable, ClassVar
+
+import torch
+from torch import Tensor, nn
+
+from ..errors import MitsvbrdfError
+from ..importance import importance
+from ..losses import importance_consistency_loss, inverse_importance_loss, map_l1
+from ..nets import (Initializer, LearnedPattern, LightingPredictor, PointPredictor, SVBRDFPredictor,
+                    network_from_record)
+from ..patterns import load_patterns
+from ..render import render
+from ..rig import Rig
+from ..separation import diffuse_irradiance, separate_specular
+from ..svbrdf import SVBRDF
+
+
+@dataclass
+class RenderSettings:
+    """How a stage renders its captures: ``method`` of :func:`mitsvbrdf.render`, ``spp``, and an
+    optional noise model ``noise(images, generator) -> images``."""
+
+    method: str = "mitsuba"
+    spp: int = 4
+    noise: Callable[[Tensor, torch.Generator], Tensor] | None = None
+
+
+class TrainingStage(nn.Module):
+    """Base class: rendering, pretrained networks, export. Subclasses set ``name``, ``Model``,
+    ``Loss``, build their networks in ``__init__`` and implement ``forward``."""
+
+    name: ClassVar[str]
+    Model: ClassVar[type]
+    Loss: ClassVar[type]
+    #: networks this stage needs from an earlier stage's export, and whether they stay frozen
+    PRETRAINED: ClassVar[dict[str, bool]] = {}
+
+    def __init__(self, model, loss, render_settings: RenderSettings, rig: Rig):
+        super().__init__()
+        self.model_cfg, self.loss_cfg, self.render_cfg, self.rig = model, loss, render_settings, rig
+        self.nets = nn.ModuleDict()
+
+    # -- networks ---------------------------------------------------------------------------
+    def networks(self) -> dict[str, nn.Module]:
+        return dict(self.nets.items())
+
+    def load_pretrained(self, records: dict[str, dict]) -> None:
+        """Replace the networks named in ``PRETRAINED`` by those of an earlier stage's export
+        ({name: network record}); frozen ones get requires_grad False."""
+        missing = [n for n in self.PRETRAINED if n not in records]
+        if missing:
+            raise MitsvbrdfError(f"stage {self.name!r} needs pretrained networks {missing}; the file has "
+                                 f"{sorted(records)}")
+        for n, frozen in self.PRETRAINED.items():
+            net = network_from_record(records[n], f"pretrained network {n!r}")
+            if n in self.nets and type(net) is not type(self.nets[n]):
+                raise MitsvbrdfError(f"pretrained network {n!r} is a {type(net).__name__}, "
+                                     f"stage {self.name!r} needs a {type(self.nets[n]).__name__}")
+            net.requires_grad_(not frozen)
+            self.nets[n] = net
+
+    # -- rendering --------------------------------------------------------------------------
+    def capture(self, batch: SVBRDF, patterns: Tensor, seed: int, generator: torch.Generator) -> Tensor:
+        imgs = render(batch, patterns, self.rig, method=self.render_cfg.method, spp=self.render_cfg.spp, seed=seed)
+        return imgs if self.render_cfg.noise is None else self.render_cfg.noise(imgs, generator)
+
+    def first_image(self, batch: SVBRDF, seed: int, g: torch.Generator) -> tuple[Tensor, Tensor]:
+        """(L_0 (3, h, w), I_0 (B, 3, H, W))."""
+        l0 = self.nets["l0"]()[0]
+        return l0, self.capture(batch, l0[None], seed, g)[:, 0]
+
+
+def _generator(seed: int, device) -> torch.Generator:
+    return torch.Generator(device=device).manual_seed(seed)
+
+
+# ---- init ----------------------------------------------------------------------------------
+
+
+@dataclass
+class InitModel:
+    initializer_width: int = 16
+    initializer_blocks: list[int] = field(default_factory=lambda: [1, 1, 1])
+
+
+@dataclass
+class InitLoss:
+    maps: float = 1.0
+
+
+class InitStage(TrainingStage):
+    name, Model, Loss = "init", InitModel, InitLoss
+
+    def __init__(self, model: InitModel, loss: InitLoss, render_settings: RenderSettings, rig: Rig):
+        super().__init__(model, loss, render_settings, rig)
+        self.nets["l0"] = LearnedPattern(rig.lcd_cells)
+        self.nets["initializer"] = Initializer(model.initializer_width, tuple(model.initializer_blocks))
+
+    def forward(self, batch: SVBRDF, seed: int) -> dict[str, Tensor]:
+        g = _generator(seed, batch.device)
+        _, i0 = self.first_image(batch, seed, g)
+        l_maps = map_l1(self.nets["initializer"](i0), batch.encoded())
+        return {"loss": self.loss_cfg.maps * l_maps, "maps": l_maps}
+
+
+# ---- stage 1 and 2 -------------------------------------------------------------------------
+
+
+@dataclass
+class AdaptiveModel:
+    lighting_width: int = 12
+    lighting_blocks: list[int] = field(default_factory=lambda: [1, 1, 1])
+    point_hidden: int = 64
+    point_layers: int = 3
+    svbrdf_width: int = 16
+    svbrdf_blocks: list[int] = field(default_factory=lambda: [1, 1, 1])
+    lpdf_from: str = "initializer"   # "initializer" | "ground_truth" | "uniform" (Diff. Init. ablation)
+    lpdf_stride: int = 4
+
+
+@dataclass
+class AdaptiveLoss:
+    consistency: float = 1.0
+    inverse: float = 0.5
+    reconstruction: float = 1.0
+
+
+@dataclass
+class Stage2Loss(AdaptiveLoss):
+    inverse: float = 0.05
+
+
+class AdaptiveStage(TrainingStage):
+    """Shared part of stages 1 and 2: I_0 -> L_pdf -> G_l -> the adaptive captures."""
+
+    PRETRAINED = {"l0": True, "initializer": True}
+
+    def __init__(self, model: AdaptiveModel, loss, render_settings: RenderSettings, rig: Rig):
+        super().__init__(model, loss, render_settings, rig)
+        if model.lpdf_from not in ("initializer", "ground_truth", "uniform"):
+            raise MitsvbrdfError(f"model.lpdf_from must be initializer, ground_truth or uniform, got {model.lpdf_from!r}")
+        self.nets["l0"] = LearnedPattern(rig.lcd_cells)
+        self.nets["initializer"] = Initializer()
+        self.nets["lighting"] = LightingPredictor(4, rig.lcd_cells, model.lighting_width, tuple(model.lighting_blocks))
+
+    def lpdf(self, batch: SVBRDF, i0: Tensor) -> Tensor:
+        cfg = self.model_cfg
+        if cfg.lpdf_from == "uniform":
+            return torch.ones(batch.batch_size, 1, *self.rig.lcd_cells, device=i0.device, dtype=i0.dtype)
+        if cfg.lpdf_from == "ground_truth":
+            n, r = batch.normal, batch.roughness
+        else:
+            with torch.no_grad():
+                from ..pipeline import maps_to_svbrdf
+
+                est = maps_to_svbrdf(self.nets["initializer"](i0))
+            n, r = est.normal, est.roughness
+        with torch.no_grad():
+            return importance(n, r, self.rig, texel_stride=cfg.lpdf_stride)
+
+    def adaptive_captures(self, batch: SVBRDF, seed: int):
+        g = _generator(seed, batch.device)
+        with torch.no_grad():
+            l0, i0 = self.first_image(batch, seed, g)
+        lpdf = self.lpdf(batch, i0)
+        out = self.nets["lighting"](i0, lpdf)
+        imgs = self.capture(batch, out.patterns, seed + 1, g)
+        b = batch.batch_size
+        patterns = torch.cat([l0.detach()[None, None].expand(b, 1, *l0.shape), out.patterns], 1)
+        images = torch.cat([i0[:, None], imgs], 1)
+        losses = {"consistency": importance_consistency_loss(l0.detach(), out.patterns, lpdf),
+                  "inverse": inverse_importance_loss(out.normal, out.roughness, batch.normal, batch.roughness)}
+        return patterns, images, losses
+
+    def total(self, losses: dict[str, Tensor]) -> dict[str, Tensor]:
+        c = self.loss_cfg
+        losses["loss"] = c.consistency * losses["consistency"] + c.inverse * losses["inverse"] + \
+            c.reconstruction * losses["reconstruction"]
+        return losses
+
+
+class Stage1(AdaptiveStage):
+    name, Model, Loss = "stage1", AdaptiveModel, AdaptiveLoss
+
+    def __init__(self, model: AdaptiveModel, loss: AdaptiveLoss, render_settings: RenderSettings, rig: Rig):
+        super().__init__(model, loss, render_settings, rig)
+        self.nets["point"] = PointPredictor(5, rig.lcd_cells, model.point_hidden, model.point_layers)
+
+    def forward(self, batch: SVBRDF, seed: int) -> dict[str, Tensor]:
+        patterns, images, losses = self.adaptive_captures(batch, seed)
+        irradiance = diffuse_irradiance(patterns, self.rig, batch.resolution)
+        pred = self.nets["point"](images, irradiance, patterns)
+        losses["reconstruction"] = map_l1(pred, batch.encoded())
+        return self.total(losses)
+
+
+class Stage2(AdaptiveStage):
+    name, Model, Loss = "stage2", AdaptiveModel, Stage2Loss
+    PRETRAINED = {"l0": True, "initializer": True, "lighting": False}
+
+    def __init__(self, model: AdaptiveModel, loss: AdaptiveLoss, render_settings: RenderSettings, rig: Rig):
+        super().__init__(model, loss, render_settings, rig)
+        self.nets["svbrdf"] = SVBRDFPredictor(5, model.svbrdf_width, tuple(model.svbrdf_blocks))
+
+    def forward(self, batch: SVBRDF, seed: int) -> dict[str, Tensor]:
+        patterns, images, losses = self.adaptive_captures(batch, seed)
+        pred = self.nets["svbrdf"](images, separate_specular(images, patterns, self.rig))
+        losses["reconstruction"] = map_l1(pred, batch.encoded())
+        return self.total(losses)
+
+
+class Finetune(Stage2):
+    """G_sc alone on captures with the frozen G_l's patterns (paper: Mitsuba renderings)."""
+
+    name = "finetune"
+    PRETRAINED = {"l0": True, "initializer": True, "lighting": True, "svbrdf": False}
+
+    def forward(self, batch: SVBRDF, seed: int) -> dict[str, Tensor]:
+        with torch.no_grad():
+            patterns, images, _ = self.adaptive_captures(batch, seed)
+        pred = self.nets["svbrdf"](images, separate_specular(images, patterns, self.rig))
+        rec = map_l1(pred, batch.encoded())
+        return {"loss": self.loss_cfg.reconstruction * rec, "reconstruction": rec}
+
+
+# ---- fixed-pattern baselines ---------------------------------------------------------------
+
+
+@dataclass
+class FixedModel:
+    patterns: str = "monograd"   # a family name or a .npy/.pt/PNG file of 5 patterns
+    svbrdf_width: int = 16
+    svbrdf_blocks: list[int] = field(default_factory=lambda: [1, 1, 1])
+    use_spec: bool = False
+
+
+@dataclass
+class FixedLoss:
+    reconstruction: float = 1.0
+
+
+class FixedStage(TrainingStage):
+    name, Model, Loss = "fixed", FixedModel, FixedLoss
+
+    def __init__(self, model: FixedModel, loss: FixedLoss, render_settings: RenderSettings, rig: Rig):
+        super().__init__(model, loss, render_settings, rig)
+        pats = load_patterns(model.patterns, *rig.lcd_cells)
+        rig.check_patterns(pats)
+        self.register_buffer("patterns", pats)
+        self.nets["svbrdf"] = SVBRDFPredictor(pats.shape[0], model.svbrdf_width, tuple(model.svbrdf_blocks),
+                                              use_spec=model.use_spec)
+
+    def forward(self, batch: SVBRDF, seed: int) -> dict[str, Tensor]:
+        g = _generator(seed, batch.device)
+        with torch.no_grad():
+            images = self.capture(batch, self.patterns, seed, g)
+            spec = separate_specular(images, self.patterns, self.rig) if self.model_cfg.use_spec else None
+        rec = map_l1(self.nets["svbrdf"](images, spec), batch.encoded())
+        return {"loss": self.loss_cfg.reconstruction * rec, "reconstruction": rec}
+
+
+STAGES: dict[str, type[TrainingStage]] = {s.name: s for s in (InitStage, Stage1, Stage2, Finetune, FixedStage)}

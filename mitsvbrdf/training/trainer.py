@@ -104,6 +104,11 @@ class Trainer:
         self._stop = False
         if resume:
             self._load_checkpoint()
+        if self.rank == 0:
+            import json
+
+            self.out.mkdir(parents=True, exist_ok=True)
+            (self.out / "config.json").write_text(json.dumps(config_table(cfg), indent=1, default=str))
 
     # -- files ------------------------------------------------------------------------------
     @property

@@ -1,0 +1,101 @@
+"""Networks: shapes, ranges, per-pixel independence of G_p, parameter counts, network files."""
+
+import pytest
+import torch
+
+from mitsvbrdf.nets import (Initializer, LearnedPattern, LightingPredictor, NAFBlock, NetworkFileError, PointPredictor,
+                            SVBRDFPredictor, load_network, parameter_count, save_network)
+
+
+@pytest.fixture(autouse=True)
+def _threads(one_torch_thread):
+    torch.manual_seed(0)
+
+
+def test_fresh_nafblock_is_the_identity():
+    x = torch.randn(2, 8, 16, 16)
+    assert torch.equal(NAFBlock(8)(x), x)
+
+
+@pytest.mark.parametrize("size", [32, 64])
+def test_lighting_predictor_outputs_patterns_and_inverse_maps(size):
+    out = LightingPredictor(width=4)(torch.rand(2, 3, size, size), torch.rand(2, 1, 32, 32))
+    assert out.patterns.shape == (2, 4, 3, 32, 32)
+    assert out.patterns.min() >= 0 and out.patterns.max() <= 1
+    assert out.normal.shape == (2, 3, size, size) and out.roughness.shape == (2, 1, size, size)
+    assert torch.allclose(out.normal.norm(dim=1), torch.ones(2, size, size), atol=1e-5)
+    assert (out.normal[:, 2] > 0).all()
+
+
+@pytest.mark.parametrize("size", [32, 64])
+def test_svbrdf_predictor_maps_images_and_spec_to_ten_channels(size):
+    net = SVBRDFPredictor(width=4)
+    y = net(torch.rand(1, 5, 3, size, size), torch.randn(1, 10, 3, size, size) * 1e-3)
+    assert y.shape == (1, 10, size, size) and y.min() >= 0 and y.max() <= 1
+
+
+def test_svbrdf_predictor_with_spec_refuses_to_run_without_it():
+    with pytest.raises(ValueError, match="I\\^spec"):
+        SVBRDFPredictor(width=4)(torch.rand(1, 5, 3, 32, 32))
+
+
+def test_input_size_must_fit_the_downsampling():
+    with pytest.raises(ValueError, match="multiples of 8"):
+        Initializer(width=4)(torch.rand(1, 3, 36, 36))
+
+
+def test_point_predictor_is_strictly_per_pixel():
+    net = PointPredictor(hidden=16)
+    imgs, irr, pats = torch.rand(2, 5, 3, 8, 8), torch.rand(2, 5, 3, 8, 8), torch.rand(2, 5, 3, 32, 32)
+    y = net(imgs, irr, pats)
+    perm = torch.randperm(64)
+
+    def shuffle(t):
+        return t.flatten(-2)[..., perm].reshape(t.shape)
+
+    assert torch.allclose(net(shuffle(imgs), shuffle(irr), pats), shuffle(y), atol=1e-6)
+
+
+def test_point_predictor_sees_each_materials_patterns():
+    net = PointPredictor(hidden=16)
+    imgs, irr = torch.rand(1, 5, 3, 8, 8).expand(2, -1, -1, -1, -1), torch.rand(1, 5, 3, 8, 8).expand(2, -1, -1, -1, -1)
+    y = net(imgs, irr, torch.rand(2, 5, 3, 32, 32))
+    assert not torch.allclose(y[0], y[1])
+
+
+def test_learned_pattern_stays_in_range_and_learns():
+    p = LearnedPattern((32, 32))
+    v = p().detach()
+    assert v.shape == (1, 3, 32, 32) and 0 < float(v.min()) <= float(v.max()) < 1
+    p().mean().backward()
+    assert p.logits.grad.abs().sum() > 0
+
+
+def test_parameter_counts_are_reported(capsys):
+    counts = {type(n).__name__: parameter_count(n) for n in (LightingPredictor(), PointPredictor(), SVBRDFPredictor(),
+                                                               Initializer())}
+    print(counts)
+    assert all(c > 1000 for c in counts.values())
+    assert counts["LightingPredictor"] < counts["SVBRDFPredictor"]  # G_l is the shallow one
+
+
+def test_network_file_roundtrip(tmp_path):
+    net = SVBRDFPredictor(width=4, use_spec=False)
+    save_network(tmp_path / "g.pt", net)
+    back = load_network(tmp_path / "g.pt", expect=SVBRDFPredictor)
+    x = torch.rand(1, 5, 3, 32, 32)
+    assert torch.equal(back(x), net(x))
+
+
+def test_network_file_of_another_architecture_is_refused(tmp_path):
+    save_network(tmp_path / "g.pt", LightingPredictor(width=4))
+    with pytest.raises(NetworkFileError, match="holds a LightingPredictor, expected a SVBRDFPredictor"):
+        load_network(tmp_path / "g.pt", expect=SVBRDFPredictor)
+
+
+def test_corrupt_or_missing_network_file_is_refused(tmp_path):
+    (tmp_path / "bad.pt").write_bytes(b"not a checkpoint")
+    with pytest.raises(NetworkFileError, match="cannot read"):
+        load_network(tmp_path / "bad.pt")
+    with pytest.raises(NetworkFileError, match="no such network file"):
+        load_network(tmp_path / "none.pt")

@@ -1,0 +1,197 @@
+"""Training: configs, stages (gradients through Mitsuba), the driver (resume, signals, DDP, outputs)."""
+
+import os
+import signal
+import subprocess
+import sys
+from pathlib import Path
+
+import pytest
+import torch
+
+import mitsvbrdf as ms
+from mitsvbrdf.data.procedural import generate
+from mitsvbrdf.training import STAGES, ConfigError, RenderSettings, Trainer, TrainingError, load_config, train
+
+ROOT = Path(__file__).resolve().parents[1]
+
+
+@pytest.fixture(autouse=True)
+def _threads(one_torch_thread):
+    pass
+
+
+def tiny(stage: str, out: Path, steps: int = 3, extra=(), **model) -> object:
+    table = {"stage": stage, "seed": 0, "out": str(out), "data": {"size": 32},
+             "render": {"method": "mitsuba", "spp": 1},
+             "train": {"steps": steps, "batch": 2, "log_every": 1, "checkpoint_every": 2, "lr": 1e-3},
+             "model": model}
+    return load_config(table=table, overrides=list(extra))
+
+
+# ---- configs -------------------------------------------------------------------------------
+
+
+def test_every_shipped_config_validates():
+    for path in sorted((ROOT / "train").glob("*.toml")):
+        load_config(path)
+
+
+def test_unknown_key_is_named_with_a_suggestion():
+    with pytest.raises(ConfigError, match=r"train\.stpes: unknown key \(did you mean 'steps'\?\)"):
+        load_config(table={"stage": "init", "train": {"stpes": 3}})
+
+
+def test_wrong_type_is_named():
+    with pytest.raises(ConfigError, match=r"train\.lr: expected float, got str"):
+        load_config(table={"stage": "init", "train": {"lr": "fast"}})
+
+
+def test_unknown_model_key_of_the_stage_is_named():
+    with pytest.raises(ConfigError, match=r"model\.lighting_widht: unknown key"):
+        load_config(table={"stage": "stage1", "model": {"lighting_widht": 4}})
+
+
+def test_missing_or_unknown_stage_is_refused():
+    with pytest.raises(ConfigError, match="stage: must be one of"):
+        load_config(table={"seed": 1})
+
+
+def test_overrides_set_nested_keys():
+    cfg = load_config(ROOT / "train" / "init-small.toml", ["train.steps=7", "render.method=reference"])
+    assert cfg.train.steps == 7 and cfg.render.method == "reference"
+
+
+# ---- stages ----------------------------------------------------------------------------------
+
+
+def test_gradient_reaches_the_lighting_net_through_the_mitsuba_renderer(rig):
+    S = STAGES["stage1"]
+    # reconstruction loss only: its gradient can reach G_l only through the rendered images
+    stage = S(S.Model(lighting_width=4, point_hidden=16), S.Loss(consistency=0.0, inverse=0.0),
+              RenderSettings("mitsuba", 2), rig)
+    stage(generate(2, size=32, seed=0), seed=1)["loss"].backward()
+    grads = [p.grad for p in stage.nets["lighting"].heads.parameters()]
+    assert all(g is not None and torch.isfinite(g).all() for g in grads)
+    assert sum(float(g.abs().sum()) for g in grads) > 0
+
+
+@pytest.mark.parametrize("name", ["init", "stage1", "stage2", "finetune", "fixed"])
+def test_each_stage_returns_finite_losses_and_gradients(rig, name):
+    S = STAGES[name]
+    model = {"init": dict(initializer_width=4), "fixed": dict(svbrdf_width=4)}.get(
+        name, dict(lighting_width=4, point_hidden=16, svbrdf_width=4))
+    stage = S(S.Model(**model), S.Loss(), RenderSettings("mitsuba", 1), rig)
+    out = stage(generate(2, size=32, seed=1), seed=0)
+    assert "loss" in out and all(torch.isfinite(v) for v in out.values())
+    out["loss"].backward()
+
+
+def test_a_few_steps_on_one_batch_reduce_the_loss(rig):
+    S = STAGES["fixed"]
+    stage = S(S.Model(svbrdf_width=4), S.Loss(), RenderSettings("mitsuba", 1), rig)
+    batch = generate(2, size=32, seed=2)
+    opt = torch.optim.Adam(stage.parameters(), lr=3e-3)
+    first = None
+    for _ in range(15):
+        loss = stage(batch, seed=0)["loss"]
+        first = first if first is not None else float(loss.detach())
+        opt.zero_grad()
+        loss.backward()
+        opt.step()
+    assert float(loss) < 0.8 * first
+
+
+def test_pretrained_networks_with_wrong_names_are_refused(rig):
+    S = STAGES["stage1"]
+    stage = S(S.Model(), S.Loss(), RenderSettings(), rig)
+    with pytest.raises(ms.MitsvbrdfError, match=r"needs pretrained networks \['initializer'\]"):
+        stage.load_pretrained({"l0": {}})
+
+
+# ---- the driver ------------------------------------------------------------------------------
+
+
+def _params(out: Path) -> dict:
+    return torch.load(out / "checkpoint.pt", weights_only=False)["stage"]
+
+
+def test_run_writes_checkpoint_metrics_plot_and_networks(tmp_path):
+    train(tiny("init", tmp_path, initializer_width=4), progress=False)
+    for f in ("checkpoint.pt", "metrics.csv", "loss.png", "networks.pt"):
+        assert (tmp_path / f).exists(), f
+    assert set(torch.load(tmp_path / "networks.pt", weights_only=True)) == {"l0", "initializer"}
+
+
+def test_resume_after_a_kill_reaches_the_same_parameters(tmp_path):
+    full = tiny("init", tmp_path / "full", steps=4, initializer_width=4)
+    train(full, progress=False)
+    cut = tiny("init", tmp_path / "cut", steps=4, initializer_width=4)
+    Trainer(cut, progress=False, stop_after=1).run()  # "killed" after step 1 (checkpointed there)
+    train(cut, resume=True, progress=False)
+    a, b = _params(tmp_path / "full"), _params(tmp_path / "cut")
+    assert all(torch.equal(a[k], b[k]) for k in a)
+    la = [h["loss"] for h in torch.load(tmp_path / "full" / "checkpoint.pt", weights_only=False)["history"]]
+    lb = [h["loss"] for h in torch.load(tmp_path / "cut" / "checkpoint.pt", weights_only=False)["history"]]
+    assert la == lb
+
+
+def test_resume_without_a_checkpoint_is_a_clear_error(tmp_path):
+    with pytest.raises(TrainingError, match="no checkpoint at"):
+        Trainer(tiny("init", tmp_path / "none", initializer_width=4), resume=True, progress=False)
+
+
+def test_stage_without_its_pretrained_networks_is_a_clear_error(tmp_path):
+    with pytest.raises(TrainingError, match="pretrained.networks"):
+        Trainer(tiny("stage1", tmp_path), progress=False)
+
+
+def test_sigterm_checkpoints_and_stops(tmp_path):
+    cfg = tmp_path / "c.toml"
+    cfg.write_text(f'stage = "init"\nout = "{tmp_path / "run"}"\n[data]\nsize = 32\n[render]\nspp = 1\n'
+                   f'[model]\ninitializer_width = 4\n[train]\nsteps = 100000\nbatch = 2\ncheckpoint_every = 100000\n')
+    proc = subprocess.Popen([sys.executable, "-m", "mitsvbrdf", "train", str(cfg), "--quiet"], cwd=ROOT,
+                            stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True,
+                            env={**os.environ, "OMP_NUM_THREADS": "1"})
+    try:
+        import time
+
+        deadline = time.time() + 120
+        while not (tmp_path / "run").exists() and time.time() < deadline:
+            time.sleep(0.2)
+        time.sleep(3.0)  # a few steps
+        proc.send_signal(signal.SIGTERM)
+        out, _ = proc.communicate(timeout=120)
+    finally:
+        proc.kill()
+    assert proc.returncode == 0, out
+    assert "continue with --resume" in out
+    step = torch.load(tmp_path / "run" / "checkpoint.pt", weights_only=False)["step"]
+    assert 0 < step < 100000
+
+
+DDP_SCRIPT = r"""
+import os, sys, torch
+torch.set_num_threads(1)
+from mitsvbrdf.training import load_config, Trainer
+out, world = sys.argv[1], int(os.environ.get("WORLD_SIZE", "1"))
+cfg = load_config(table={"stage": "fixed", "seed": 0, "out": out, "data": {"size": 32},
+                         "render": {"method": "reference"}, "model": {"svbrdf_width": 4},
+                         "train": {"steps": 2, "batch": 4, "log_every": 1, "checkpoint_every": 2, "lr": 1e-3,
+                                   "grad_clip": 0.0}})
+Trainer(cfg, progress=False).run()
+"""
+
+
+def test_two_gloo_processes_equal_one_process_with_the_whole_batch(tmp_path):
+    script = tmp_path / "ddp.py"
+    script.write_text(DDP_SCRIPT)
+    env = {**os.environ, "OMP_NUM_THREADS": "1"}
+    subprocess.run([sys.executable, str(script), str(tmp_path / "one")], check=True, cwd=ROOT, env=env,
+                   capture_output=True)
+    r = subprocess.run([sys.executable, "-m", "torch.distributed.run", "--nproc_per_node=2", "--master_port=29517",
+                        str(script), str(tmp_path / "two")], cwd=ROOT, env=env, capture_output=True, text=True)
+    assert r.returncode == 0, r.stderr[-3000:]
+    a, b = _params(tmp_path / "one"), _params(tmp_path / "two")
+    for k in a:
+        assert torch.allclose(a[k], b[k], atol=1e-5, rtol=1e-4), k

@@ -208,6 +208,7 @@ class Trainer:
         old = {s: signal.signal(s, self._handle) for s in (signal.SIGINT, signal.SIGTERM)}
         bar = tqdm(total=cfg.steps, initial=self.step, desc=self.cfg.stage, disable=not self.progress)
         t0, last = time.perf_counter(), {}
+        t_log, step_log = t0, self.step
         try:
             while self.step < cfg.steps:
                 batch = self.batch(self.step)
@@ -222,10 +223,12 @@ class Trainer:
                 self.step += 1
                 bar.update(1)
                 if self.step % cfg.log_every == 0 or self.step == cfg.steps:
-                    dt = time.perf_counter() - t0
+                    now = time.perf_counter()
+                    rate = (self.step - step_log) / max(now - t_log, 1e-9)
+                    t_log, step_log = now, self.step
                     last = {"step": self.step, **{k: float(v.detach()) for k, v in losses.items()},
-                            "lr": self.sched.get_last_lr()[0], "it_per_s": round(bar.format_dict.get("rate") or 0.0, 3),
-                            "seconds": round(dt, 2)}
+                            "lr": self.sched.get_last_lr()[0], "it_per_s": round(rate, 3),
+                            "seconds": round(now - t0, 2)}
                     self.history.append(last)
                     bar.set_postfix(loss=f"{last['loss']:.4f}")
                 if self.step % cfg.checkpoint_every == 0:

@@ -3,16 +3,17 @@
 * :func:`map_l1`: L_r, L1 between encoded maps (B, 10, H, W).
 * :func:`inverse_importance_loss`: L_inv, L1 of G_l's inverse head against the true normal and
   roughness.
-* :func:`importance_consistency_loss`: L_c = 1 - MS-SSIM_cs(grey(L_0 + sum_i L_i), L_pdf), Eq. 7,
-  keeping only the contrast-structure term at every scale so that colour and intensity of the
-  patterns stay free.
+* :func:`importance_consistency_loss`: L_c = 1 - MS-SSIM_cs(grey(L_0 + sum_i L_i) / P, L_pdf),
+  Eq. 7, keeping only the contrast-structure term at every scale: the mean level (luminance) and
+  the colours of the patterns stay free, their spatial structure and contrast follow L_pdf.
 
 MS-SSIM on a 32 x 32 LCD grid: 3 scales (32, 16, 8 cells) with a 5-tap Gaussian window
 (sigma 1.0, the 11-tap / 1.5 window of the image metric would not fit the coarsest scale), equal
-exponents 1/3, constants C2 = (0.03)^2 for data in [0, 1]. Inputs are min-max normalised per
-map first: cs is invariant to brightness shifts and gains, and this fixes the range C2 assumes.
-A constant map (e.g. a black pattern sum) has no structure: its cs is C2 / C2 = 1 against
-another constant and < 1 against a structured map, finite with finite gradients everywhere.
+exponents 1/3, constants C2 = (0.03)^2 for data in [0, 1] (the pattern sum is divided by the
+number of patterns; L_pdf is min-max normalised by construction). The inputs are not normalised
+further: C2 is what makes a nearly flat pattern sum score low against a structured L_pdf. A
+constant map (e.g. black patterns) has cs = C2 / (var + C2) against a map of variance var:
+finite, with finite gradients.
 """
 
 from __future__ import annotations
@@ -41,12 +42,6 @@ def _window(size: int = 5, sigma: float = 1.0, device=None, dtype=torch.float32)
     return (g[:, None] * g[None, :])[None, None]
 
 
-def _normalise(x: Tensor) -> Tensor:
-    lo = x.amin((-2, -1), keepdim=True)
-    hi = x.amax((-2, -1), keepdim=True)
-    return (x - lo) / (hi - lo).clamp_min(1e-6)
-
-
 def ssim_cs(x: Tensor, y: Tensor, window: Tensor) -> Tensor:
     """Mean contrast-structure term (2 s_xy + C2) / (s_x^2 + s_y^2 + C2) per map: (B, 1, h, w) -> (B,)."""
     mu_x, mu_y = F.conv2d(x, window), F.conv2d(y, window)
@@ -67,7 +62,6 @@ def ms_ssim_cs(x: Tensor, y: Tensor, scales: int = 3) -> Tensor:
     w = _window(device=x.device, dtype=x.dtype)
     if min(x.shape[-2:]) < 5 * 2 ** (scales - 1):
         raise ValueError(f"{scales} scales need maps of at least {5 * 2 ** (scales - 1)} cells, got {tuple(x.shape[-2:])}")
-    x, y = _normalise(x), _normalise(y)
     out = torch.ones(x.shape[0], device=x.device, dtype=x.dtype)
     for s in range(scales):
         if s:
@@ -77,11 +71,11 @@ def ms_ssim_cs(x: Tensor, y: Tensor, scales: int = 3) -> Tensor:
 
 
 def importance_consistency_loss(l0: Tensor, patterns: Tensor, lpdf: Tensor) -> Tensor:
-    """Eq. 7 as a loss: 1 - MS-SSIM_cs between the grey sum of all patterns and L_pdf.
+    """Eq. 7 as a loss: 1 - MS-SSIM_cs between the grey mean of all P patterns and L_pdf.
 
     Args:
         l0: (3, h, w) or (B, 3, h, w) first pattern; patterns: (B, P-1, 3, h, w) adaptive patterns;
         lpdf: (B, 1, h, w).
     """
-    total = patterns.sum(1) + (l0 if l0.ndim == 4 else l0[None])
+    total = (patterns.sum(1) + (l0 if l0.ndim == 4 else l0[None])) / (patterns.shape[1] + 1)
     return (1.0 - ms_ssim_cs(total.mean(1, keepdim=True), lpdf)).mean()

@@ -15,13 +15,19 @@ def _blob(shift=0.0):
 def test_identical_maps_have_unit_cs_and_zero_loss():
     x = _blob()
     assert float(ms_ssim_cs(x, x)) == pytest.approx(1.0, abs=1e-6)
-    assert float(importance_consistency_loss(torch.zeros(3, 32, 32), x.expand(1, 1, 3, 32, 32) / 1, x)) == \
-        pytest.approx(0.0, abs=1e-5)
+    # mean of L_0 and four patterns equal to L_pdf: 4/5 of its contrast, cs close to 1
+    loss = float(importance_consistency_loss(torch.zeros(3, 32, 32), x.expand(1, 4, 3, 32, 32), x))
+    assert loss < 0.03
 
 
-def test_cs_ignores_brightness_and_contrast():
+def test_cs_ignores_the_mean_level():
     x = _blob()
-    assert float(ms_ssim_cs(0.2 + 3.0 * x, x)) == pytest.approx(1.0, abs=1e-5)
+    assert float(ms_ssim_cs(0.3 + 0.5 * x, 0.5 * x)) == pytest.approx(1.0, abs=1e-5)
+
+
+def test_nearly_flat_patterns_score_low_against_a_structured_lpdf():
+    x = _blob()
+    assert float(ms_ssim_cs(0.5 + 0.01 * x, x)) < 0.3
 
 
 def test_cs_decreases_as_structure_departs():
@@ -54,10 +60,10 @@ def test_single_scale_cs_matches_a_direct_float64_computation():
 
 def test_consistency_adds_l0_to_the_predicted_patterns():
     lpdf = _blob()
-    l0 = lpdf[0].expand(3, 32, 32)  # L_0 alone already has the structure of L_pdf
-    flat = torch.zeros(1, 4, 3, 32, 32)
-    assert float(importance_consistency_loss(l0, flat, lpdf)) < 1e-5
-    assert float(importance_consistency_loss(torch.zeros(3, 32, 32), flat + torch.rand(1, 4, 3, 32, 32), lpdf)) > 0.3
+    l0 = lpdf[0].expand(3, 32, 32)  # L_0 carries the structure of L_pdf, the others add contrast
+    same = lpdf[:, None].expand(1, 4, 3, 32, 32)
+    assert float(importance_consistency_loss(l0, same, lpdf)) < 1e-5
+    assert float(importance_consistency_loss(torch.zeros(3, 32, 32), torch.rand(1, 4, 3, 32, 32), lpdf)) > 0.3
 
 
 def test_l1_losses():

@@ -1,0 +1,55 @@
+"""Summarise training runs: does the loss decrease? Reads RUN/metrics.csv of each run given.
+
+    .venv/bin/python benchmarks/training_log.py runs/init-small runs/stage1-small ...
+
+Prints, per run, the mean of each loss term over the first and the last 10% of the logged steps,
+and copies each run's metrics.csv and loss.png to docs/benchmarks/training_runs/<run>/; writes
+docs/benchmarks/training_log.md (+ CSV).
+"""
+
+from __future__ import annotations
+
+import argparse
+import csv
+import shutil
+from pathlib import Path
+
+from report import write_report
+
+ROOT = Path(__file__).resolve().parent.parent
+SKIP = {"step", "lr", "it_per_s", "seconds"}
+
+
+def main() -> None:
+    ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
+    ap.add_argument("runs", nargs="+", type=Path)
+    ap.add_argument("--out", type=Path, default=ROOT / "docs" / "benchmarks")
+    args = ap.parse_args()
+    rows = []
+    for run in args.runs:
+        with open(run / "metrics.csv") as f:
+            hist = list(csv.DictReader(f))
+        k = max(1, len(hist) // 10)
+        for key in hist[0]:
+            if key in SKIP:
+                continue
+            first = sum(float(h[key]) for h in hist[:k]) / k
+            last = sum(float(h[key]) for h in hist[-k:]) / k
+            rows.append({"run": run.name, "term": key, "steps": hist[-1]["step"], "first_10pct": round(first, 5),
+                         "last_10pct": round(last, 5), "ratio": round(last / first, 3) if first else float("nan")})
+        dest = args.out / "training_runs" / run.name
+        dest.mkdir(parents=True, exist_ok=True)
+        for name in ("metrics.csv", "loss.png", "config.json"):
+            if (run / name).exists():
+                shutil.copy(run / name, dest / name)
+    text = ("Mean of each logged loss term over the first and the last 10% of the logged steps "
+            "(each run's metrics.csv and loss.png are copied to training_runs/).\n\n"
+            "| run | term | steps | first 10% | last 10% | last / first |\n|---|---|---:|---:|---:|---:|\n" +
+            "\n".join(f"| {r['run']} | {r['term']} | {r['steps']} | {r['first_10pct']} | {r['last_10pct']} | "
+                      f"{r['ratio']} |" for r in rows) + "\n")
+    print(text)
+    write_report(args.out, "training_log", "Training runs: loss over the run", "training_log.py", text, rows)
+
+
+if __name__ == "__main__":
+    main()

@@ -1,6 +1,10 @@
 """Command line interface: ``python -m mitsvbrdf <command> ...`` (or the ``mitsvbrdf`` script).
 
 Commands:
+    demo [--out DIR]
+        The whole method on the bundled material with the shipped networks (the main job).
+    evaluate --model NETWORKS --data DIR|procedural --out DIR [--baseline NAME=NETWORKS ...]
+        Map and re-rendering metrics of the adaptive method and baselines; tables, figures, HTML.
     train CONFIG [--resume] [--set key=value ...] [--out DIR]
         Train one stage of the method (init, stage1, stage2, finetune, fixed) from a TOML config.
     simulate SCENE --material PATH --patterns NAME_OR_FILE --out DIR
@@ -132,6 +136,73 @@ def cmd_materials_preview(args: argparse.Namespace) -> int:
     return 0
 
 
+def cmd_demo(args: argparse.Namespace) -> int:
+    from .demo import DEFAULT_MATERIAL, DEFAULT_NETWORKS, run_demo
+
+    rec = run_demo(args.out, material=args.material or DEFAULT_MATERIAL, networks=args.networks or DEFAULT_NETWORKS,
+                   scene=args.scene, resolution=args.resolution, spp=args.spp, seed=args.seed,
+                   progress=not args.quiet)
+    m = rec["metrics"]
+    print(f"wrote {args.out}/report.html: map RMSE {m['rmse_average']:.4f} (normal {m['rmse_normal']:.4f}, diffuse "
+          f"{m['rmse_diffuse']:.4f}, roughness {m['rmse_roughness']:.4f}, specular {m['rmse_specular']:.4f}), "
+          f"re-render RMSE {m['rerender_rmse']:.4f}, SSIM {m['ssim']:.3f}; {rec['seconds']['total']} s")
+    return 0
+
+
+def load_materials(data: str, size: int, n: int) -> list:
+    """Materials for evaluation: "procedural" (held-out seeds) or a folder of strips / map folders /
+    EXR files, each resampled to size x size."""
+    from .errors import MaterialError
+    from .svbrdf import SVBRDF
+
+    if data == "procedural":
+        from .data.procedural import generate
+        from .training.config import TEST_SEED_BASE
+
+        mats = generate(n, size=size, seed=TEST_SEED_BASE)
+        return [mats[i] for i in range(n)]
+    root = Path(data)
+    if not root.is_dir():
+        raise MaterialError(f"--data {data!r} is neither 'procedural' nor a folder")
+    paths = sorted(p for p in root.iterdir() if p.suffix.lower() in (".png", ".exr") or p.is_dir())
+    if not paths:
+        raise MaterialError(f"no materials found in {root} (expected strip PNGs, EXR files or folders of maps)")
+    out = []
+    for p in paths[:n] if n else paths:
+        m = SVBRDF.load(p)
+        out.append(SVBRDF(**_resize_svbrdf(m, size).maps(), name=p.stem))
+    return out
+
+
+def cmd_evaluate(args: argparse.Namespace) -> int:
+    import torch as _torch
+
+    from .demo import load_pipeline
+    from .evaluation import adaptive_method, evaluate, fixed_pattern_method
+    from .nets import NetworkFileError, network_from_record
+    from .rig import Rig
+    from .separation import separate_specular
+
+    rig = Rig.from_scene(args.scene)
+    methods = {"adaptive": adaptive_method(load_pipeline(args.model, rig), spp=args.spp, seed=args.seed)}
+    for spec in args.baseline or []:
+        name, _, path = spec.partition("=")
+        recs = _torch.load(path, map_location="cpu", weights_only=True)
+        if not isinstance(recs, dict) or not {"patterns", "svbrdf"} <= set(recs):
+            raise NetworkFileError(f"{path}: a fixed-pattern baseline needs networks 'patterns' and 'svbrdf'")
+        pats = network_from_record(recs["patterns"], f"{path}: patterns")().detach()
+        net = network_from_record(recs["svbrdf"], f"{path}: svbrdf").eval()
+
+        def reconstruct(images, patterns, net=net):
+            return net(images, separate_specular(images, patterns, rig) if net.use_spec else None)
+
+        methods[name] = fixed_pattern_method(pats, reconstruct, rig, spp=args.spp, seed=args.seed)
+    materials = load_materials(args.data, args.size, args.n)
+    evaluate(methods, materials, rig, args.out, progress=not args.quiet)
+    print((Path(args.out) / "summary.md").read_text())
+    return 0
+
+
 def cmd_train(args: argparse.Namespace) -> int:
     from .training import load_config, train
 
@@ -191,6 +262,28 @@ def build_parser() -> argparse.ArgumentParser:
     t.add_argument("--out", default="", help="output folder (overrides the config's out)")
     t.add_argument("--quiet", action="store_true", help="no progress bar")
     t.set_defaults(func=cmd_train)
+    d = sub.add_parser("demo", help="the whole method on the bundled material with the shipped networks")
+    d.add_argument("--out", default="out/demo", help="output folder (default out/demo)")
+    d.add_argument("--material", default="", help="material to acquire (default: the bundled example)")
+    d.add_argument("--networks", default="", help="networks.pt of stage2/finetune (default: the shipped weights)")
+    d.add_argument("--scene", default=None, help="rig scene file (default scenes/lcd_rig.xml)")
+    d.add_argument("--resolution", type=int, default=256, help="material resolution (default 256)")
+    d.add_argument("--spp", type=int, default=64, help="Mitsuba samples per texel (default 64)")
+    d.add_argument("--seed", type=int, default=0)
+    d.add_argument("--quiet", action="store_true", help="no progress bar")
+    d.set_defaults(func=cmd_demo)
+    e = sub.add_parser("evaluate", help="score the adaptive method (and baselines) on a set of materials")
+    e.add_argument("--model", required=True, help="networks.pt of stage2/finetune")
+    e.add_argument("--baseline", action="append", metavar="NAME=NETWORKS.pt", help="a fixed-pattern baseline run")
+    e.add_argument("--data", default="procedural", help="'procedural' (held-out seeds) or a folder of materials")
+    e.add_argument("--n", type=int, default=16, help="number of materials (0: all in the folder)")
+    e.add_argument("--size", type=int, default=256, help="materials are resampled to size x size")
+    e.add_argument("--spp", type=int, default=64)
+    e.add_argument("--seed", type=int, default=0)
+    e.add_argument("--scene", default=None)
+    e.add_argument("--out", required=True, help="output folder")
+    e.add_argument("--quiet", action="store_true")
+    e.set_defaults(func=cmd_evaluate)
     return p
 
 

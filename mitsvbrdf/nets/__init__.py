@@ -9,7 +9,7 @@ Parameter counts at default sizes: ``python -m mitsvbrdf.nets`` prints them.
 """
 
 from .blocks import LayerNorm2d, NAFBlock, SimpleGate
-from .initializer import Initializer, LearnedPattern
+from .initializer import Initializer, LearnedPattern, PatternSet
 from .io import NetworkFileError, load_network, network_from_record, network_record, parameter_count, save_network
 from .lighting import LightingOutput, LightingPredictor
 from .nafnet import NAFDecoder, NAFEncoder, NAFNet, normalize_images
@@ -18,5 +18,5 @@ from .svbrdf_net import SVBRDFPredictor
 
 __all__ = ["LayerNorm2d", "NAFBlock", "SimpleGate", "NAFNet", "NAFEncoder", "NAFDecoder", "normalize_images",
            "LightingPredictor", "LightingOutput", "PointPredictor", "SVBRDFPredictor", "LearnedPattern",
-           "Initializer", "save_network", "load_network", "network_record", "network_from_record",
+           "Initializer", "PatternSet", "save_network", "load_network", "network_record", "network_from_record",
            "parameter_count", "NetworkFileError"]

@@ -44,3 +44,15 @@ class Initializer(nn.Module):
 
     def forward(self, i0: Tensor) -> Tensor:
         return torch.sigmoid(self.net(normalize_images(i0)))
+
+
+class PatternSet(nn.Module):
+    """A fixed group of patterns (n, 3, h, w) kept with a network file (the fixed-pattern baselines)."""
+
+    def __init__(self, count: int = 5, cells: tuple[int, int] = (32, 32)):
+        super().__init__()
+        self.config = dict(count=count, cells=tuple(cells))
+        self.register_buffer("patterns", torch.zeros(count, 3, *cells))
+
+    def forward(self) -> Tensor:
+        return self.patterns

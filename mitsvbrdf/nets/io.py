@@ -15,12 +15,13 @@ class NetworkFileError(MitsvbrdfError):
 
 
 def registry() -> dict[str, type[nn.Module]]:
-    from .initializer import Initializer, LearnedPattern
+    from .initializer import Initializer, LearnedPattern, PatternSet
     from .lighting import LightingPredictor
     from .point import PointPredictor
     from .svbrdf_net import SVBRDFPredictor
 
-    return {c.__name__: c for c in (Initializer, LearnedPattern, LightingPredictor, PointPredictor, SVBRDFPredictor)}
+    return {c.__name__: c for c in (Initializer, LearnedPattern, PatternSet, LightingPredictor, PointPredictor,
+                                   SVBRDFPredictor)}
 
 
 def network_record(net: nn.Module) -> dict:

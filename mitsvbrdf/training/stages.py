@@ -25,7 +25,7 @@ from torch import Tensor, nn
 from ..errors import MitsvbrdfError
 from ..importance import importance
 from ..losses import importance_consistency_loss, inverse_importance_loss, map_l1
-from ..nets import (Initializer, LearnedPattern, LightingPredictor, PointPredictor, SVBRDFPredictor,
+from ..nets import (Initializer, LearnedPattern, LightingPredictor, PatternSet, PointPredictor, SVBRDFPredictor,
                     network_from_record)
 from ..patterns import load_patterns
 from ..render import render
@@ -265,15 +265,17 @@ class FixedStage(TrainingStage):
         super().__init__(model, loss, render_settings, rig)
         pats = load_patterns(model.patterns, *rig.lcd_cells)
         rig.check_patterns(pats)
-        self.register_buffer("patterns", pats)
+        self.nets["patterns"] = PatternSet(pats.shape[0], rig.lcd_cells)
+        self.nets["patterns"].patterns.copy_(pats)
         self.nets["svbrdf"] = SVBRDFPredictor(pats.shape[0], model.svbrdf_width, tuple(model.svbrdf_blocks),
                                               use_spec=model.use_spec)
 
     def forward(self, batch: SVBRDF, seed: int) -> dict[str, Tensor]:
         g = _generator(seed, batch.device)
+        pats = self.nets["patterns"]()
         with torch.no_grad():
-            images = self.capture(batch, self.patterns, seed, g)
-            spec = separate_specular(images, self.patterns, self.rig) if self.model_cfg.use_spec else None
+            images = self.capture(batch, pats, seed, g)
+            spec = separate_specular(images, pats, self.rig) if self.model_cfg.use_spec else None
         rec = map_l1(self.nets["svbrdf"](images, spec), batch.encoded())
         return {"loss": self.loss_cfg.reconstruction * rec, "reconstruction": rec}
 

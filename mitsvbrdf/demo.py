@@ -1,0 +1,126 @@
+"""``mitsvbrdf demo``: the whole method on one material, from embedded defaults.
+
+Picks the bundled example material, simulates the capture through the scene file's Mitsuba
+plugins (L_0 first), predicts the 4 adaptive patterns with the shipped networks, "captures" them,
+reconstructs the SVBRDF, and writes into the output folder:
+
+* ``maps.png`` (encoded strip) and ``maps.exr`` (linear, layered) of the reconstruction, and
+  ``ground_truth.png`` for comparison;
+* ``patterns.png`` (L_0..L_4), ``images.png`` (tone-mapped captures) and ``image_XX.exr``;
+* ``relit.png``: ground truth vs reconstruction under novel point lights and LCD step edges;
+* ``summary.png`` (patterns, captures, maps, error maps, re-renderings) and ``report.html``;
+* ``export/``: the reconstruction as a Mitsuba scene and as glTF maps;
+* ``demo.json``: settings, timings and the error metrics.
+"""
+
+from __future__ import annotations
+
+import html
+import json
+import time
+from pathlib import Path
+
+import numpy as np
+import torch
+
+from . import imageio
+from .evaluation import Capture, Relighting, material_figure, score
+from .export import export_gltf, export_mitsuba_scene
+from .nets import NetworkFileError, network_from_record
+from .pipeline import AcquisitionPipeline
+from .relight import tonemap
+from .rig import Rig
+from .svbrdf import SVBRDF
+
+ROOT = Path(__file__).resolve().parent.parent
+DEFAULT_MATERIAL = ROOT / "examples" / "materials" / "artificial_0.png"
+DEFAULT_NETWORKS = Path(__file__).resolve().parent / "weights" / "networks.pt"
+NEEDED = ("l0", "initializer", "lighting", "svbrdf")
+
+
+def load_pipeline(path: str | Path, rig: Rig, **kwargs) -> AcquisitionPipeline:
+    """The acquisition pipeline from a ``networks.pt`` export of stage 2 or the fine-tuning."""
+    path = Path(path)
+    if not path.exists():
+        raise NetworkFileError(f"{path}: no such networks file (train the stages, see docs/training.md)")
+    try:
+        recs = torch.load(path, map_location="cpu", weights_only=True)
+    except Exception as e:
+        raise NetworkFileError(f"{path}: cannot read networks from it ({e})") from e
+    if not isinstance(recs, dict) or any(k not in recs for k in NEEDED):
+        have = sorted(recs) if isinstance(recs, dict) else type(recs).__name__
+        raise NetworkFileError(f"{path}: an acquisition needs networks {list(NEEDED)}, the file has {have} "
+                               "(use the export of stage2 or finetune)")
+    nets = {k: network_from_record(recs[k], f"{path}: {k}").eval() for k in NEEDED}
+    with torch.no_grad():
+        l0 = nets["l0"]()[0]
+    return AcquisitionPipeline(l0, nets["initializer"], nets["lighting"], nets["svbrdf"], rig, **kwargs)
+
+
+def _strip(t: torch.Tensor) -> np.ndarray:
+    """(P, 3, h, w) in [0, 1] -> (h, P * w, 3)."""
+    return t.detach().cpu().clamp(0, 1).permute(2, 0, 3, 1).reshape(t.shape[2], -1, 3).numpy()
+
+
+def run_demo(out: str | Path, *, material: str | Path = DEFAULT_MATERIAL, networks: str | Path = DEFAULT_NETWORKS,
+             scene: str | Path | None = None, resolution: int = 256, spp: int = 64, seed: int = 0,
+             progress: bool = True) -> dict:
+    """Run the demo (module docstring); returns the record written to ``demo.json``."""
+    from tqdm import tqdm
+
+    from .cli import _resize_svbrdf
+
+    out = Path(out)
+    out.mkdir(parents=True, exist_ok=True)
+    steps = ["load", "capture + reconstruct", "re-render", "write"]
+    bar = tqdm(total=len(steps), desc="demo", disable=not progress)
+    t0 = time.perf_counter()
+    rig = Rig.from_scene(scene)
+    gt = _resize_svbrdf(SVBRDF.load(material), resolution)
+    pipe = load_pipeline(networks, rig)
+    bar.set_postfix_str(steps[1])
+    bar.update(1)
+    t1 = time.perf_counter()
+    acq = pipe.simulate(gt, method="mitsuba", spp=spp, seed=seed)
+    t2 = time.perf_counter()
+    bar.set_postfix_str(steps[2])
+    bar.update(1)
+    relight = Relighting.make(rig, n_lights=4, n_edges=4, seed=seed)
+    metrics, gt_relit, pred_relit = score(acq.svbrdf, gt, rig, relight)
+    bar.set_postfix_str(steps[3])
+    bar.update(1)
+    acq.svbrdf.save(out / "maps.png")
+    acq.svbrdf.save(out / "maps.exr")
+    gt.save(out / "ground_truth.png", include_render=False)
+    imageio.write_png(out / "patterns.png", _strip(acq.patterns))
+    exposure = 1.0 / float(torch.quantile(acq.images.flatten(), 0.99).clamp_min(1e-12))
+    imageio.write_png(out / "images.png", _strip(tonemap(acq.images, exposure)))
+    for k, img in enumerate(acq.images):
+        imageio.write_exr(out / f"image_{k:02d}.exr", img.permute(1, 2, 0).numpy())
+    relit = torch.cat([gt_relit, pred_relit], -2)  # ground truth above, reconstruction below
+    imageio.write_png(out / "relit.png", _strip(relit))
+    material_figure(gt, {"adaptive": (Capture(acq.patterns, acq.images, acq.svbrdf), pred_relit)}, gt_relit,
+                    out / "summary.png")
+    export_mitsuba_scene(acq.svbrdf, out / "export" / "mitsuba", rig)
+    export_gltf(acq.svbrdf, out / "export" / "gltf", sample_size=rig.sample_size)
+    record = {"material": str(material), "networks": str(networks), "resolution": resolution, "spp": spp,
+              "seed": seed, "seconds": {"total": None, "capture_and_reconstruction": round(t2 - t1, 2)},
+              "metrics": {k: round(v, 5) for k, v in metrics.items()}}
+    record["seconds"]["total"] = round(time.perf_counter() - t0, 2)
+    (out / "demo.json").write_text(json.dumps(record, indent=2))
+    _report(out, record)
+    bar.update(1)
+    bar.close()
+    return record
+
+
+def _report(out: Path, record: dict) -> None:
+    rows = "".join(f"<tr><td>{html.escape(k)}</td><td>{v}</td></tr>" for k, v in record["metrics"].items())
+    imgs = "".join(f'<h2>{t}</h2><img src="{f}" style="max-width:100%">' for t, f in
+                   (("Summary", "summary.png"), ("Patterns L0..L4", "patterns.png"), ("Captured images", "images.png"),
+                    ("Re-rendered: ground truth (top) vs reconstruction (bottom)", "relit.png"),
+                    ("Reconstructed maps", "maps.png"), ("Ground truth maps", "ground_truth.png")))
+    (out / "report.html").write_text(
+        "<!doctype html><html><head><meta charset='utf-8'><title>mitsvbrdf demo</title></head><body>"
+        f"<h1>mitsvbrdf demo</h1><p>{html.escape(record['material'])} at {record['resolution']} px, "
+        f"{record['spp']} spp, {record['seconds']['total']} s.</p><table>{rows}</table>{imgs}</body></html>\n")

@@ -47,6 +47,8 @@ def main() -> None:
     args = ap.parse_args()
     torch.manual_seed(0)
     rig = ms.Rig.from_scene()
+    if not args.networks.exists():
+        raise SystemExit(f"{args.networks} does not exist: train init-small and stage1-small first (docs/training.md)")
     recs = torch.load(args.networks, weights_only=True)
     l0, init, lighting = (network_from_record(recs[k], k).eval() for k in ("l0", "initializer", "lighting"))
     mats = generate(args.n, size=args.size, seed=TEST_SEED_BASE)

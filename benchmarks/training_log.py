@@ -22,11 +22,14 @@ SKIP = {"step", "lr", "it_per_s", "seconds"}
 
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
-    ap.add_argument("runs", nargs="+", type=Path)
+    ap.add_argument("runs", nargs="*", type=Path, help="run folders (default: every runs/* with a metrics.csv)")
     ap.add_argument("--out", type=Path, default=ROOT / "docs" / "benchmarks")
     args = ap.parse_args()
+    runs = args.runs or sorted(p.parent for p in (ROOT / "runs").glob("*/metrics.csv"))
+    if not runs:
+        raise SystemExit("no training runs found (train first, see docs/training.md)")
     rows = []
-    for run in args.runs:
+    for run in runs:
         with open(run / "metrics.csv") as f:
             hist = list(csv.DictReader(f))
         k = max(1, len(hist) // 10)

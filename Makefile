@@ -11,8 +11,7 @@ setup:
 	bash scripts/setup.sh
 
 demo: setup
-	$(PY) -m mitsvbrdf simulate scenes/lcd_rig.xml --material examples/materials/artificial_0.png \
-		--patterns monograd --out out/demo
+	$(PY) -m mitsvbrdf demo --out out/demo
 
 test: setup
 	$(PY) -m pytest -q $(PYTEST_ARGS)

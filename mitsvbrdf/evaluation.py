@@ -231,8 +231,9 @@ def material_figure(gt: SVBRDF, shown: dict[str, tuple[Capture, Tensor]], gt_rel
         enc = cap.svbrdf.encoded()[0]
         for c, k in enumerate(names):
             put(r0 + 1, c, _display(enc[MAP_CHANNELS[k]]), f"{name} {k}")
-            err = (enc[MAP_CHANNELS[k]] - enc_gt[MAP_CHANNELS[k]]).abs().mean(0, keepdim=True)
-            put(r0 + 2, c, _display(err * 4), f"|error| x4 (rmse {float(err.square().mean().sqrt()):.3f})")
+            diff = enc[MAP_CHANNELS[k]] - enc_gt[MAP_CHANNELS[k]]
+            put(r0 + 2, c, _display(diff.abs().mean(0, keepdim=True) * 4),
+                f"|error| x4 (rmse {float(diff.square().mean().sqrt()):.3f})")
         for c in range(n_relit):
             put(r0 + 1, len(names) + c, _display(relit[c]), "relit")
     fig.tight_layout()

@@ -42,7 +42,7 @@ def main() -> None:
     ap.add_argument("--full", action="store_true")
     ap.add_argument("--device", default="cpu")
     ap.add_argument("--steps", type=int, default=5)
-    ap.add_argument("--methods", default="mitsuba,ltc")
+    ap.add_argument("--methods", default="mitsuba,ltc,ltc-prefiltered")
     ap.add_argument("--out", type=Path, default=ROOT / "docs" / "benchmarks")
     args = ap.parse_args()
     import mitsvbrdf as ms
@@ -54,7 +54,9 @@ def main() -> None:
         for stage in ("init", "stage1", "stage2", "finetune"):
             path = ROOT / "train" / (f"{stage}.toml" if args.full else f"{stage}-small.toml")
             for method in args.methods.split(","):
-                cfg = load_config(path, [f"render.method={method}", f"train.steps={args.steps + 1}",
+                render_opts = ["render.method=ltc", "render.ltc_mode=prefiltered"] if method == "ltc-prefiltered" \
+                    else [f"render.method={method}"]
+                cfg = load_config(path, render_opts + [ f"train.steps={args.steps + 1}",
                                          f"train.device={args.device}", f"out=\"{tmp / stage / method}\"",
                                          f"train.checkpoint_every={10 ** 9}"])
                 prev = {"stage1": "init", "stage2": "stage1", "finetune": "stage2"}.get(stage)

@@ -59,6 +59,7 @@ class NoiseConfig:
 class RenderConfig:
     method: str = "mitsuba"
     spp: int = 4
+    ltc_mode: str = "exact"   # method = "ltc": "exact" (every LCD cell) or "prefiltered" (the paper's)
     noise: NoiseConfig = field(default_factory=NoiseConfig)
 
 
@@ -186,6 +187,7 @@ def load_config(path: str | Path | None = None, overrides: list[str] | None = No
 def _check_values(cfg: Config) -> None:
     checks = [(cfg.data.source in ("procedural", "strips", "folders"), "data.source", "procedural, strips or folders"),
               (cfg.render.method in ("mitsuba", "ltc", "reference"), "render.method", "mitsuba, ltc or reference"),
+              (cfg.render.ltc_mode in ("exact", "prefiltered"), "render.ltc_mode", "exact or prefiltered"),
               (cfg.train.device in ("auto", "cpu", "cuda"), "train.device", "auto, cpu or cuda"),
               (cfg.train.steps >= 1, "train.steps", ">= 1"), (cfg.train.batch >= 1, "train.batch", ">= 1"),
               (cfg.train.checkpoint_every >= 1, "train.checkpoint_every", ">= 1"),

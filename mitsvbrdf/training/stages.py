@@ -42,6 +42,7 @@ class RenderSettings:
     method: str = "mitsuba"
     spp: int = 4
     noise: Callable[[Tensor, torch.Generator], Tensor] | None = None
+    ltc_mode: str = "exact"
 
 
 class TrainingStage(nn.Module):
@@ -80,7 +81,9 @@ class TrainingStage(nn.Module):
 
     # -- rendering --------------------------------------------------------------------------
     def capture(self, batch: SVBRDF, patterns: Tensor, seed: int, generator: torch.Generator) -> Tensor:
-        imgs = render(batch, patterns, self.rig, method=self.render_cfg.method, spp=self.render_cfg.spp, seed=seed)
+        cfg = self.render_cfg
+        extra = {"mode": cfg.ltc_mode} if cfg.method == "ltc" else {}
+        imgs = render(batch, patterns, self.rig, method=cfg.method, spp=cfg.spp, seed=seed, **extra)
         return imgs if self.render_cfg.noise is None else self.render_cfg.noise(imgs, generator)
 
     def first_image(self, batch: SVBRDF, seed: int, g: torch.Generator) -> tuple[Tensor, Tensor]:

@@ -82,7 +82,8 @@ class Trainer:
         torch.manual_seed(cfg.seed)
         rig = Rig.from_scene(cfg.scene or None)
         noise = SensorNoise(**vars(cfg.render.noise))
-        settings = RenderSettings(cfg.render.method, cfg.render.spp, noise if noise.active else None)
+        settings = RenderSettings(cfg.render.method, cfg.render.spp, noise if noise.active else None,
+                                  cfg.render.ltc_mode)
         cls = STAGES[cfg.stage]
         self.stage: TrainingStage = cls(cfg.model, cfg.loss, settings, rig)
         if cls.PRETRAINED:

@@ -195,3 +195,16 @@ def test_two_gloo_processes_equal_one_process_with_the_whole_batch(tmp_path):
     a, b = _params(tmp_path / "one"), _params(tmp_path / "two")
     for k in a:
         assert torch.allclose(a[k], b[k], atol=1e-5, rtol=1e-4), k
+
+
+def test_small_configs_run_as_a_chain_of_stages(tmp_path):
+    prev = None
+    for stage in ("init", "stage1", "stage2", "finetune"):
+        sets = ["train.steps=2", "train.batch=2", "train.log_every=1", "render.spp=1", f'out="{tmp_path / stage}"']
+        if prev:
+            sets.append(f'pretrained.networks="{tmp_path / prev / "networks.pt"}"')
+        last = train(load_config(ROOT / "train" / f"{stage}-small.toml", sets), progress=False)
+        assert last["step"] == 2 and torch.isfinite(torch.tensor(last["loss"]))
+        prev = stage
+    assert set(torch.load(tmp_path / "finetune" / "networks.pt", weights_only=True)) == \
+        {"l0", "initializer", "lighting", "svbrdf"}

@@ -27,6 +27,7 @@ from . import imageio
 from .evaluation import Capture, Relighting, material_figure, score
 from .export import export_gltf, export_mitsuba_scene
 from .nets import NetworkFileError, network_from_record
+from .nets.io import read_network_file
 from .pipeline import AcquisitionPipeline
 from .relight import tonemap
 from .rig import Rig
@@ -40,13 +41,7 @@ NEEDED = ("l0", "initializer", "lighting", "svbrdf")
 
 def load_pipeline(path: str | Path, rig: Rig, **kwargs) -> AcquisitionPipeline:
     """The acquisition pipeline from a ``networks.pt`` export of stage 2 or the fine-tuning."""
-    path = Path(path)
-    if not path.exists():
-        raise NetworkFileError(f"{path}: no such networks file (train the stages, see docs/training.md)")
-    try:
-        recs = torch.load(path, map_location="cpu", weights_only=True)
-    except Exception as e:
-        raise NetworkFileError(f"{path}: cannot read networks from it ({e})") from e
+    recs = read_network_file(path, "networks", " (train the stages, see docs/training.md)")
     if not isinstance(recs, dict) or any(k not in recs for k in NEEDED):
         have = sorted(recs) if isinstance(recs, dict) else type(recs).__name__
         raise NetworkFileError(f"{path}: an acquisition needs networks {list(NEEDED)}, the file has {have} "

@@ -53,16 +53,21 @@ def save_network(path: str | Path, net: nn.Module) -> None:
     tmp.replace(path)
 
 
-def load_network(path: str | Path, expect: type[nn.Module] | None = None) -> nn.Module:
-    """Load a network file; ``expect`` checks its class (a G_sc file where a G_l belongs fails)."""
+def read_network_file(path: str | Path, what: str = "network", hint: str = ""):
+    """The contents of a network file (one record, or {name: record} for a stage's export), with
+    clear errors for a missing or unreadable file."""
     path = Path(path)
     if not path.exists():
-        raise NetworkFileError(f"{path}: no such network file")
+        raise NetworkFileError(f"{path}: no such {what} file{hint}")
     try:
-        rec = torch.load(path, map_location="cpu", weights_only=True)
+        return torch.load(path, map_location="cpu", weights_only=True)
     except Exception as e:
-        raise NetworkFileError(f"{path}: cannot read a network from it ({e})") from e
-    net = network_from_record(rec, str(path))
+        raise NetworkFileError(f"{path}: cannot read a {what} from it ({e})") from e
+
+
+def load_network(path: str | Path, expect: type[nn.Module] | None = None) -> nn.Module:
+    """Load a network file; ``expect`` checks its class (a G_sc file where a G_l belongs fails)."""
+    net = network_from_record(read_network_file(path), str(path))
     if expect is not None and not isinstance(net, expect):
         raise NetworkFileError(f"{path}: holds a {type(net).__name__}, expected a {expect.__name__}")
     return net

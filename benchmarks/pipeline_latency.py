@@ -1,0 +1,66 @@
+"""CPU latency of the acquisition's learned steps for one 256 x 256 material: pattern prediction
+(initializer + L_pdf + G_l) and reconstruction (separation + G_sc), with the shipped networks.
+
+    .venv/bin/python benchmarks/pipeline_latency.py [--networks mitsvbrdf/weights/networks.pt]
+
+The captures are rendered once (Mitsuba, 64 spp) and not timed; each step is timed as the median
+of 5 runs after a warm-up run (which builds the separation's cached diffuse kernel). Writes
+docs/benchmarks/pipeline_latency_cpu.md (+ CSV).
+"""
+
+from __future__ import annotations
+
+import argparse
+import statistics
+import time
+from pathlib import Path
+
+import torch
+
+import mitsvbrdf as ms
+from mitsvbrdf.cli import _resize_svbrdf
+from mitsvbrdf.demo import DEFAULT_MATERIAL, DEFAULT_NETWORKS, load_pipeline
+from report import write_report
+
+ROOT = Path(__file__).resolve().parent.parent
+
+
+def median_seconds(fn, runs: int = 5) -> float:
+    fn()
+    times = []
+    for _ in range(runs):
+        t0 = time.perf_counter()
+        fn()
+        times.append(time.perf_counter() - t0)
+    return statistics.median(times)
+
+
+def main() -> None:
+    ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
+    ap.add_argument("--networks", type=Path, default=DEFAULT_NETWORKS)
+    ap.add_argument("--size", type=int, default=256)
+    ap.add_argument("--out", type=Path, default=ROOT / "docs" / "benchmarks")
+    args = ap.parse_args()
+    rig = ms.Rig.from_scene()
+    pipe = load_pipeline(args.networks, rig)
+    gt = _resize_svbrdf(ms.SVBRDF.load(DEFAULT_MATERIAL), args.size)
+    with torch.no_grad():
+        i0 = ms.render(gt, pipe.l0[None], rig, method="mitsuba", spp=64, seed=1)[:, 0]
+        adaptive, _, _ = pipe.predict_patterns(i0)
+        patterns = pipe.all_patterns(adaptive)
+        images = ms.render(gt, patterns, rig, method="mitsuba", spp=64, seed=2)
+    predict = median_seconds(lambda: pipe.predict_patterns(i0))
+    reconstruct = median_seconds(lambda: pipe.reconstruct(images, patterns))
+    rows = [{"step": "pattern prediction (initializer + L_pdf + G_l)", "seconds": round(predict, 3)},
+            {"step": "reconstruction (separation + G_sc)", "seconds": round(reconstruct, 3)},
+            {"step": "total", "seconds": round(predict + reconstruct, 3)}]
+    text = (f"One {args.size}x{args.size} material, networks `{args.networks.name}` "
+            f"({sum(p.numel() for p in pipe.parameters()):,} parameters), CPU with {torch.get_num_threads()} "
+            "threads; median of 5 runs after a warm-up.\n\n| step | seconds |\n|---|---:|\n" +
+            "\n".join(f"| {r['step']} | {r['seconds']} |" for r in rows) + "\n")
+    print(text)
+    write_report(args.out, "pipeline_latency_cpu", "Acquisition latency on CPU", "pipeline_latency.py", text, rows)
+
+
+if __name__ == "__main__":
+    main()

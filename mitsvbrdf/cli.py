@@ -203,6 +203,26 @@ def cmd_evaluate(args: argparse.Namespace) -> int:
     return 0
 
 
+def cmd_patterns_pca(args: argparse.Namespace) -> int:
+    from .data.procedural import generate
+    from .importance import importance
+    from .patterns import pca_patterns
+    from .rig import Rig
+
+    rig = Rig.from_scene(args.scene)
+    lp = []
+    for start in range(0, args.n, 16):
+        mats = generate(min(16, args.n - start), size=args.size, seed=args.seed, start=start)
+        with torch.no_grad():
+            lp.append(importance(mats.normal, mats.roughness, rig, texel_stride=args.stride))
+    pats = pca_patterns(torch.cat(lp), n=args.count)
+    out = Path(args.out)
+    out.parent.mkdir(parents=True, exist_ok=True)
+    np.save(out, pats.numpy())
+    print(f"wrote {out}: {args.count} PCA patterns from the L_pdf of {args.n} training materials (seed {args.seed})")
+    return 0
+
+
 def cmd_train(args: argparse.Namespace) -> int:
     from .training import load_config, train
 
@@ -255,6 +275,17 @@ def build_parser() -> argparse.ArgumentParser:
     m.add_argument("--pattern", default="uniform", help="pattern family or file; its first pattern is used")
     m.add_argument("--quiet", action="store_true", help="no progress bar")
     m.set_defaults(func=cmd_materials_preview)
+    pt = sub.add_parser("patterns", help="pattern groups")
+    psub = pt.add_subparsers(dest="patterns_command", required=True)
+    pc = psub.add_parser("pca", help="the PCA group: mean + principal components of training materials' L_pdf")
+    pc.add_argument("--out", required=True, help="output .npy (P, 3, h, w)")
+    pc.add_argument("--n", type=int, default=256, help="training materials (default 256)")
+    pc.add_argument("--size", type=int, default=64, help="their resolution (default 64)")
+    pc.add_argument("--stride", type=int, default=2, help="L_pdf texel stride (default 2)")
+    pc.add_argument("--count", type=int, default=5, help="patterns (default 5)")
+    pc.add_argument("--seed", type=int, default=0, help="procedural stream seed (training seeds)")
+    pc.add_argument("--scene", default=None)
+    pc.set_defaults(func=cmd_patterns_pca)
     t = sub.add_parser("train", help="train a stage from a TOML config (see train/ and docs/training.md)")
     t.add_argument("config", help="config file, e.g. train/stage1-small.toml")
     t.add_argument("--resume", action="store_true", help="continue from OUT/checkpoint.pt")

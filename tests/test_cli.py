@@ -3,6 +3,7 @@
 import json
 from pathlib import Path
 
+import numpy as np
 import pytest
 import torch
 
@@ -55,3 +56,12 @@ def test_simulate_reports_a_bad_pattern_name(tmp_path, capsys):
     rc = main(["simulate", str(SCENE), "--material", str(EXAMPLE), "--patterns", "sunset",
                "--out", str(tmp_path), "--resolution", "8", "--quiet"])
     assert rc == 2 and "sunset" in capsys.readouterr().err
+
+
+def test_patterns_pca_writes_a_group_of_valid_patterns(tmp_path):
+    from mitsvbrdf.cli import main
+
+    out = tmp_path / "pca.npy"
+    assert main(["patterns", "pca", "--out", str(out), "--n", "6", "--size", "16", "--stride", "4"]) == 0
+    p = np.load(out)
+    assert p.shape == (5, 3, 32, 32) and p.min() >= 0 and p.max() <= 1

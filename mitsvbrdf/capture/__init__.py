@@ -1,6 +1,7 @@
 """Capture at a real bench. So far: HDR merging and camera response calibration (:mod:`.hdr`),
-and colour calibration from a ColorChecker (:mod:`.color`). Devices, the serial controller, the
-LCD's geometric and decay calibration and the capture session follow."""
+colour calibration from a ColorChecker (:mod:`.color`), and the LCD's drive curve and emission
+decay written back into a scene file (:mod:`.display`). Devices, the serial controller, the LCD's
+geometric calibration and the capture session follow."""
 
 from .hdr import HDRResult, Response, calibrate_response, hat_weight, merge_hdr
 

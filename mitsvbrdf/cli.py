@@ -175,11 +175,10 @@ def load_materials(data: str, size: int, n: int) -> list:
 
 
 def cmd_evaluate(args: argparse.Namespace) -> int:
-    import torch as _torch
-
     from .demo import load_pipeline
     from .evaluation import adaptive_method, evaluate, fixed_pattern_method
     from .nets import NetworkFileError, network_from_record
+    from .nets.io import read_network_file
     from .rig import Rig
     from .separation import separate_specular
 
@@ -187,7 +186,7 @@ def cmd_evaluate(args: argparse.Namespace) -> int:
     methods = {"adaptive": adaptive_method(load_pipeline(args.model, rig), spp=args.spp, seed=args.seed)}
     for spec in args.baseline or []:
         name, _, path = spec.partition("=")
-        recs = _torch.load(path, map_location="cpu", weights_only=True)
+        recs = read_network_file(path, "baseline networks")
         if not isinstance(recs, dict) or not {"patterns", "svbrdf"} <= set(recs):
             raise NetworkFileError(f"{path}: a fixed-pattern baseline needs networks 'patterns' and 'svbrdf'")
         pats = network_from_record(recs["patterns"], f"{path}: patterns")().detach()

@@ -20,7 +20,6 @@ import json
 import time
 from pathlib import Path
 
-import numpy as np
 import torch
 
 from . import imageio
@@ -52,18 +51,13 @@ def load_pipeline(path: str | Path, rig: Rig, **kwargs) -> AcquisitionPipeline:
     return AcquisitionPipeline(l0, nets["initializer"], nets["lighting"], nets["svbrdf"], rig, **kwargs)
 
 
-def _strip(t: torch.Tensor) -> np.ndarray:
-    """(P, 3, h, w) in [0, 1] -> (h, P * w, 3)."""
-    return t.detach().cpu().clamp(0, 1).permute(2, 0, 3, 1).reshape(t.shape[2], -1, 3).numpy()
-
-
 def run_demo(out: str | Path, *, material: str | Path = DEFAULT_MATERIAL, networks: str | Path = DEFAULT_NETWORKS,
              scene: str | Path | None = None, resolution: int = 256, spp: int = 64, seed: int = 0,
              progress: bool = True) -> dict:
     """Run the demo (module docstring); returns the record written to ``demo.json``."""
     from tqdm import tqdm
 
-    from .cli import _resize_svbrdf
+    from .cli import _pattern_strip, _resize_svbrdf
 
     out = Path(out)
     out.mkdir(parents=True, exist_ok=True)
@@ -87,13 +81,12 @@ def run_demo(out: str | Path, *, material: str | Path = DEFAULT_MATERIAL, networ
     acq.svbrdf.save(out / "maps.png")
     acq.svbrdf.save(out / "maps.exr")
     gt.save(out / "ground_truth.png", include_render=False)
-    imageio.write_png(out / "patterns.png", _strip(acq.patterns))
-    exposure = 1.0 / float(torch.quantile(acq.images.flatten(), 0.99).clamp_min(1e-12))
-    imageio.write_png(out / "images.png", _strip(tonemap(acq.images, exposure)))
+    imageio.write_png(out / "patterns.png", _pattern_strip(acq.patterns))
+    imageio.write_png(out / "images.png", _pattern_strip(tonemap(acq.images)))
     for k, img in enumerate(acq.images):
         imageio.write_exr(out / f"image_{k:02d}.exr", img.permute(1, 2, 0).numpy())
     relit = torch.cat([gt_relit, pred_relit], -2)  # ground truth above, reconstruction below
-    imageio.write_png(out / "relit.png", _strip(relit))
+    imageio.write_png(out / "relit.png", _pattern_strip(relit))
     material_figure(gt, {"adaptive": (Capture(acq.patterns, acq.images, acq.svbrdf), pred_relit)}, gt_relit,
                     out / "summary.png")
     export_mitsuba_scene(acq.svbrdf, out / "export" / "mitsuba", rig)

@@ -132,15 +132,6 @@ def ltc_density(m_inv: Tensor, w: Tensor) -> Tensor:
     return cos / math.pi * torch.linalg.det(m_inv).abs()[:, None] / length ** 3
 
 
-def ltc_sample(m: Tensor, u1: Tensor, u2: Tensor) -> Tensor:
-    """Directions (E, S, 3) distributed as D_o: cosine samples transformed by M (E, 3, 3)."""
-    r = torch.sqrt(u1)
-    phi = 2.0 * math.pi * u2
-    w = torch.stack([r * torch.cos(phi), r * torch.sin(phi), torch.sqrt((1.0 - u1).clamp_min(0.0))], -1)
-    w = torch.einsum("eab,sb->esa", m, w)
-    return w / torch.linalg.vector_norm(w, dim=-1, keepdim=True)
-
-
 def rotation_to(avg: Tensor) -> Tensor:
     """Rotations about y taking +z to ``avg`` (E, 3) (unit vectors in the xz-plane); (E, 3, 3)."""
     s, c = avg[:, 0], avg[:, 2]
@@ -368,7 +359,7 @@ def default_table() -> LtcTable:
     """The table shipped with the package (fitted by this module's ``main``)."""
     if not TABLE_PATH.exists():
         raise FileNotFoundError(f"{TABLE_PATH} is missing; fit it with "
-                                "`python -m mitsvbrdf.render.ltc_fit --out {TABLE_PATH}`")
+                                f"`python -m mitsvbrdf.render.ltc_fit --out {TABLE_PATH}`")
     return LtcTable.load(TABLE_PATH)
 
 

@@ -28,6 +28,7 @@ import torch.distributed as dist
 
 from ..errors import MitsvbrdfError
 from ..nets import network_record
+from ..nets.io import read_network_file
 from ..rig import Rig
 from ..sensor import SensorNoise
 from .config import Config, config_table
@@ -121,8 +122,7 @@ class Trainer:
         if not self.cfg.pretrained.networks or not path.exists():
             raise TrainingError(f"stage {self.cfg.stage!r} starts from an earlier stage's networks: set "
                                 f"pretrained.networks (now {str(path)!r}, which does not exist)")
-        records = torch.load(path, map_location="cpu", weights_only=True)
-        self.stage.load_pretrained(records)
+        self.stage.load_pretrained(read_network_file(path, "networks"))
 
     def _load_checkpoint(self) -> None:
         if not self.checkpoint_path.exists():

@@ -42,6 +42,15 @@ class Response:
         """Relative exposure X for pixel values z in [0, 1]."""
         return np.exp(self.log_exposure[self.codes(z)])
 
+    def pixel_value(self, exposure: np.ndarray) -> np.ndarray:
+        """The forward response: pixel values z in [0, 1] for relative exposures X >= 0: the code
+        whose ln X is nearest (midpoints in ln X); exposures beyond the table clip to the end codes."""
+        with np.errstate(divide="ignore"):
+            log_x = np.log(np.maximum(np.asarray(exposure, dtype=np.float64), 0.0))
+        g = np.maximum.accumulate(self.log_exposure)  # a fitted g may wiggle by rounding; keep it monotonic
+        code = np.searchsorted(0.5 * (g[1:] + g[:-1]), log_x)  # the code whose g is nearest to ln X
+        return code / (self.levels - 1)
+
     @classmethod
     def gamma(cls, gamma: float = 2.2, levels: int = 256) -> "Response":
         """The response z = X^(1 / gamma) (exposure 1 at z = 1), for known cameras and tests."""

@@ -1,0 +1,203 @@
+"""Capture sessions on the simulated rig: devices, HDR merging, every frame on disk, resume."""
+
+import json
+
+import numpy as np
+import pytest
+import torch
+
+from mitsvbrdf import imageio
+from mitsvbrdf.capture.devices import DeviceError, FileDropCamera, ImageFileDisplay, SimulatedRig, check_pattern
+from mitsvbrdf.capture.hdr import Response
+from mitsvbrdf.capture.session import BracketCapture, CaptureSession, SessionError, merge_frames
+from mitsvbrdf.demo import DEFAULT_NETWORKS, load_pipeline
+from mitsvbrdf.render import render
+from mitsvbrdf.sensor import SensorNoise
+
+from conftest import textured_material
+
+SIZE = 24
+EXPOSURES = (0.5, 2.0, 8.0)
+
+
+def camera(rig, **kw):
+    """A noisy 8-bit camera with a gamma response on the textured material."""
+    args = dict(method="mitsuba", spp=2, seed=3, gain=4.0, noise=SensorNoise(shot=1e-3, read=2e-3),
+                response=Response.gamma(2.2))
+    args.update(kw)
+    return SimulatedRig(textured_material(SIZE, seed=1), rig, **args)
+
+
+def bracket(sim, exposures=EXPOSURES):
+    return BracketCapture(sim, sim, exposures, response=sim.response)
+
+
+@pytest.fixture(scope="module")
+def pipeline(rig):
+    return load_pipeline(DEFAULT_NETWORKS, rig)
+
+
+class FailingCamera:
+    """Passes frames through until ``fail_after`` frames, then the cable is 'pulled'."""
+
+    def __init__(self, inner, fail_after):
+        self.inner, self.left = inner, fail_after
+        self.linear, self.rectified = inner.linear, inner.rectified
+
+    def capture(self, exposure):
+        if self.left == 0:
+            raise DeviceError("camera disconnected")
+        self.left -= 1
+        return self.inner.capture(exposure)
+
+
+# ---- devices ---------------------------------------------------------------------------------------
+
+
+def test_simulated_linear_frame_is_the_render_times_gain_and_exposure(rig):
+    sim = SimulatedRig(textured_material(SIZE, seed=1), rig, method="reference", gain=0.5)
+    pattern = np.full((3, 32, 32), 0.7, np.float32)
+    sim.show(pattern)
+    expected = render(textured_material(SIZE, seed=1), torch.from_numpy(pattern)[None], rig)[0, 0].permute(1, 2, 0)
+    np.testing.assert_allclose(sim.capture(2.0), np.clip(expected.numpy(), 0, 1), rtol=1e-5, atol=1e-7)
+
+
+def test_simulated_frames_are_repeatable_per_pattern_and_exposure(rig):
+    sim = camera(rig)
+    sim.show(np.full((3, 32, 32), 0.5, np.float32))
+    a, b, c = sim.capture(1.0), sim.capture(1.0), sim.capture(2.0)
+    assert np.array_equal(a, b) and not np.array_equal(a, c)
+
+
+def test_simulated_camera_saturates_and_quantises(rig):
+    sim = camera(rig, noise=None, response=Response.gamma(2.2, levels=16))
+    sim.show(np.ones((3, 32, 32), np.float32))
+    f = sim.capture(1000.0)
+    assert f.max() == 1.0 and np.allclose(f * 15, np.round(f * 15))
+
+
+def test_capture_before_any_pattern_is_shown_is_an_error(rig):
+    with pytest.raises(DeviceError, match="show"):
+        camera(rig).capture(1.0)
+
+
+def test_patterns_of_the_wrong_shape_or_range_are_refused():
+    with pytest.raises(ValueError, match=r"\(3, 32, 32\)"):
+        check_pattern(np.zeros((3, 16, 16)), (32, 32))
+    with pytest.raises(ValueError, match=r"\[0, 1\]"):
+        check_pattern(np.full((3, 32, 32), 1.5), (32, 32))
+
+
+def test_file_drop_camera_reads_the_frame_its_trigger_produced(tmp_path):
+    imageio.write_png(tmp_path / "old.png", np.zeros((4, 4, 3)))  # present before: not a new frame
+    frame = np.random.default_rng(0).random((4, 6, 3)).astype(np.float32)
+
+    def tether(exposure):
+        imageio.write_exr(tmp_path / f"frame_{exposure:g}.exr", frame * exposure)
+
+    cam = FileDropCamera(tmp_path, trigger=tether, timeout=2, linear=True, rectified=True)
+    np.testing.assert_allclose(cam.capture(0.5), frame * 0.5, rtol=1e-6)
+
+
+def test_file_drop_camera_times_out_with_a_clear_error(tmp_path):
+    cam = FileDropCamera(tmp_path, timeout=0.2)
+    with pytest.raises(DeviceError, match="no new frame appeared"):
+        cam.capture(0.01)
+
+
+def test_image_file_display_writes_the_pattern(tmp_path):
+    shown = []
+    d = ImageFileDisplay(tmp_path / "lcd.png", on_show=shown.append)
+    pattern = np.zeros((3, 32, 32), np.float32)
+    pattern[0, 3, 5] = 1.0
+    d.show(pattern)
+    img = imageio.read_image(tmp_path / "lcd.png")
+    assert shown == [tmp_path / "lcd.png"] and img[3, 5, 0] == 1.0 and img.sum() == 1.0
+
+
+# ---- HDR merging ------------------------------------------------------------------------------------
+
+
+def test_linear_merge_of_one_frame_is_value_over_exposure():
+    f = np.random.default_rng(1).random((1, 5, 5, 3)) * 0.9
+    rad, counts = merge_frames(f, np.array([0.25]), None)
+    np.testing.assert_allclose(rad, f[0] / 0.25, rtol=1e-6)
+    assert counts == {"saturated": 0, "dark": 0}
+
+
+def test_bracket_recovers_radiance_over_three_decades(rig):
+    radiance = np.geomspace(1e-3, 1.0, 64 * 3).reshape(8, 8, 3)
+    response = Response.gamma(2.2, levels=1024)
+    times = np.array([0.5, 4.0, 32.0, 256.0])
+    frames = np.stack([response.pixel_value(radiance * t) for t in times])
+    rad, counts = merge_frames(frames, times, response)
+    assert counts["saturated"] == 0
+    np.testing.assert_allclose(rad, radiance, rtol=0.02)
+
+
+def test_samples_saturated_in_every_frame_are_counted_and_bounded():
+    f = np.ones((2, 2, 2, 3))
+    rad, counts = merge_frames(f, np.array([1.0, 2.0]), None)
+    assert counts["saturated"] == 12 and np.allclose(rad, 1.0)
+
+
+# ---- sessions ------------------------------------------------------------------------------------------
+
+
+def test_session_reconstruction_equals_the_in_memory_pipeline(rig, pipeline, tmp_path):
+    acq = CaptureSession(tmp_path / "s", pipeline, bracket(camera(rig))).run(progress=False)
+    mem = pipeline.acquire(bracket(camera(rig)))
+    assert torch.equal(acq.patterns, mem.patterns)
+    assert torch.equal(acq.images, mem.images)
+    assert torch.equal(acq.svbrdf.encoded(), mem.svbrdf.encoded())
+
+
+def test_session_writes_every_frame_pattern_and_the_maps(rig, pipeline, tmp_path):
+    CaptureSession(tmp_path, pipeline, bracket(camera(rig))).run(progress=False)
+    m = json.loads((tmp_path / "session.json").read_text())
+    assert m["done"] and sorted(m["steps"]) == ["L0", "L1", "L2", "L3", "L4"]
+    for step in m["steps"].values():
+        assert len(step["frames"]) == len(EXPOSURES)
+        for rel in [*step["frames"].values(), step["radiance"], step["pattern"]]:
+            assert (tmp_path / rel).is_file()
+    for name in ("maps.exr", "maps.png", "patterns.png", "images.png", "lpdf.npy"):
+        assert (tmp_path / name).is_file()
+    assert not list(tmp_path.rglob(".tmp-*"))
+
+
+@pytest.mark.parametrize("fail_after", [1, 7])
+def test_a_pulled_cable_loses_no_frame_and_resume_completes_the_same_session(rig, pipeline, tmp_path, fail_after):
+    whole = CaptureSession(tmp_path / "whole", pipeline, bracket(camera(rig))).run(progress=False)
+    s = tmp_path / "cut"
+    sim = camera(rig)
+    with pytest.raises(DeviceError, match="disconnected"):
+        CaptureSession(s, pipeline, BracketCapture(sim, FailingCamera(sim, fail_after), EXPOSURES,
+                                                   response=sim.response)).run(progress=False)
+    m = json.loads((s / "session.json").read_text())
+    assert sum(len(st["frames"]) for st in m["steps"].values()) == fail_after
+    rest = camera(rig)
+    acq = CaptureSession(s, pipeline, bracket(rest)).run(resume=True, progress=False)
+    assert rest.frames_taken == 5 * len(EXPOSURES) - fail_after
+    assert torch.equal(acq.svbrdf.encoded(), whole.svbrdf.encoded())
+
+
+def test_a_finished_session_is_not_overwritten(rig, pipeline, tmp_path):
+    CaptureSession(tmp_path, pipeline, bracket(camera(rig))).run(progress=False)
+    with pytest.raises(SessionError, match="--resume"):
+        CaptureSession(tmp_path, pipeline, bracket(camera(rig))).run(progress=False)
+
+
+def test_resume_with_other_settings_is_refused(rig, pipeline, tmp_path):
+    CaptureSession(tmp_path, pipeline, bracket(camera(rig))).run(progress=False)
+    with pytest.raises(SessionError, match="exposures"):
+        CaptureSession(tmp_path, pipeline, bracket(camera(rig), (1.0,))).run(resume=True, progress=False)
+
+
+def test_resume_without_a_session_is_refused(rig, pipeline, tmp_path):
+    with pytest.raises(SessionError, match="nothing to resume"):
+        CaptureSession(tmp_path, pipeline, bracket(camera(rig))).run(resume=True, progress=False)
+
+
+def test_a_camera_with_a_response_needs_it(rig):
+    with pytest.raises(ValueError, match="response"):
+        BracketCapture(camera(rig), camera(rig), EXPOSURES, response=None)

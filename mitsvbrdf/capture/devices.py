@@ -84,25 +84,30 @@ class SimulatedRig:
             response's code levels quantise).
         response: the camera's response; ``None`` is a linear RAW sensor (``levels`` codes).
         levels: code levels of a linear sensor (0: unquantised float frames).
+        color_matrix: (3, 3) the sensor's RGB from radiance RGB (crosstalk of its colour filters).
     """
 
     rectified = True
 
     def __init__(self, svbrdf: SVBRDF, rig: Rig, *, method: str = "mitsuba", spp: int = 64, seed: int = 0,
                  gain: float = 1.0, noise: SensorNoise | None = None, response: Response | None = None,
-                 levels: int = 0):
+                 levels: int = 0, color_matrix: np.ndarray | None = None):
         if gain <= 0 or not np.isfinite(gain):
             raise ValueError(f"gain must be positive, got {gain}")
-        if svbrdf.batch_size != 1:
-            raise ValueError(f"a simulated rig holds one material, got a batch of {svbrdf.batch_size}")
-        self.svbrdf = svbrdf
+        self.color_matrix = None if color_matrix is None else np.asarray(color_matrix, np.float64)
+        self.place(svbrdf)
         self.rig, self.method, self.spp, self.seed = rig, method, spp, seed
         self.gain, self.noise, self.response, self.levels = gain, noise, response, levels
         self.cells = rig.lcd_cells
         self.linear = response is None
         self._pattern: np.ndarray | None = None
-        self._radiance: np.ndarray | None = None
         self.frames_taken = 0
+
+    def place(self, svbrdf: SVBRDF) -> None:
+        """Put another material (a calibration target) on the sample."""
+        if svbrdf.batch_size != 1:
+            raise ValueError(f"a simulated rig holds one material, got a batch of {svbrdf.batch_size}")
+        self.svbrdf, self._radiance = svbrdf, None
 
     def show(self, pattern: np.ndarray) -> None:
         p = check_pattern(pattern, self.cells)
@@ -118,6 +123,8 @@ class SimulatedRig:
                 img = render(self.svbrdf, torch.from_numpy(self._pattern)[None], self.rig, method=self.method,
                              spp=self.spp, seed=self.seed)
             self._radiance = img[0, 0].permute(1, 2, 0).numpy().astype(np.float64)
+            if self.color_matrix is not None:
+                self._radiance = np.einsum("ij,hwj->hwi", self.color_matrix, self._radiance)
         return self._radiance
 
     def capture(self, exposure: float) -> np.ndarray:

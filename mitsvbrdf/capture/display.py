@@ -23,6 +23,7 @@ from ..errors import SceneError
 from ..render import render
 from ..rig import Rig
 from ..svbrdf import SVBRDF
+from .scene_file import edit_scene
 
 
 def fit_gamma(drives: np.ndarray, means: np.ndarray, min_drive: float = 0.05) -> float:
@@ -61,23 +62,23 @@ def fit_decay_power(white_capture: np.ndarray, rig: Rig, bounds: tuple[float, fl
     return float(res.x)
 
 
-def write_display_model(scene: str | Path, out: str | Path, **params: float | str) -> Path:
+def write_display_model(scene: str | Path, out: str | Path, **params) -> Path:
     """Copy ``scene`` to ``out`` with the lcd emitter's parameters set (e.g. gamma=2.2,
-    decay_cos_power=1.5, color_matrix="1 0 0 0 1 0 0 0 1"); returns ``out``."""
-    scene, out = Path(scene), Path(out)
-    tree = ET.parse(scene, parser=ET.XMLParser(target=ET.TreeBuilder(insert_comments=True)))
-    emitters = [e for e in tree.iter("emitter") if e.get("type") == "lcd"]
-    if len(emitters) != 1:
-        raise SceneError(f"{scene}: expected one lcd emitter, found {len(emitters)}")
-    em = emitters[0]
-    for name, value in params.items():
-        for old in [c for c in em if c.get("name") == name]:
-            em.remove(old)
-        tag = "string" if isinstance(value, str) else "float"
-        ET.SubElement(em, tag, {"name": name, "value": value if isinstance(value, str) else f"{value:.9g}"})
-    ET.indent(tree, space="    ")
-    out.parent.mkdir(parents=True, exist_ok=True)
-    text = scene.read_text()
-    prolog = text[:text.find("<scene")]  # comments before the root element (ElementTree drops them)
-    out.write_text(prolog + ET.tostring(tree.getroot(), encoding="unicode") + "\n")
-    return out
+    decay_cos_power=1.5, intensity=(1.9, 2.0, 2.1), color_matrix="1 0 0 0 1 0 0 0 1"); returns ``out``."""
+
+    def edit(root: ET.Element) -> None:
+        emitters = [e for e in root.iter("emitter") if e.get("type") == "lcd"]
+        if len(emitters) != 1:
+            raise SceneError(f"{scene}: expected one lcd emitter, found {len(emitters)}")
+        em = emitters[0]
+        for name, value in params.items():
+            for old in [c for c in em if c.get("name") == name]:
+                em.remove(old)
+            if isinstance(value, str):
+                ET.SubElement(em, "string", {"name": name, "value": value})
+            elif np.ndim(value) == 1:  # an RGB triple, e.g. the intensity per channel
+                ET.SubElement(em, "rgb", {"name": name, "value": ", ".join(f"{v:.9g}" for v in value)})
+            else:
+                ET.SubElement(em, "float", {"name": name, "value": f"{value:.9g}"})
+
+    return edit_scene(scene, out, edit)

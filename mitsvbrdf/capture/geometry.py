@@ -19,6 +19,7 @@ import numpy as np
 
 from ..errors import SceneError
 from ..rig import Rig
+from .scene_file import edit_scene
 
 
 def cell_local(cells: np.ndarray, grid: tuple[int, int]) -> np.ndarray:
@@ -76,19 +77,16 @@ def fit_lcd_pose(rig: Rig, cells: np.ndarray, points: np.ndarray) -> np.ndarray:
 
 def write_lcd_pose(scene: str | Path, out: str | Path, lcd_to_world: np.ndarray) -> Path:
     """Copy ``scene`` to ``out`` with the LCD shape's to_world replaced by ``lcd_to_world``."""
-    scene, out = Path(scene), Path(out)
-    tree = ET.parse(scene, parser=ET.XMLParser(target=ET.TreeBuilder(insert_comments=True)))
-    shapes = [s for s in tree.iter("shape") if any(e.get("type") == "lcd" for e in s.iter("emitter"))]
-    if len(shapes) != 1:
-        raise SceneError(f"{scene}: expected one shape with an lcd emitter, found {len(shapes)}")
-    tr = shapes[0].find("transform")
-    if tr is None:
-        tr = ET.SubElement(shapes[0], "transform", {"name": "to_world"})
-    for op in list(tr):
-        tr.remove(op)
-    ET.SubElement(tr, "matrix", {"value": " ".join(f"{v:.12g}" for v in np.asarray(lcd_to_world).ravel())})
-    ET.indent(tree, space="    ")
-    text = scene.read_text()
-    out.parent.mkdir(parents=True, exist_ok=True)
-    out.write_text(text[:text.find("<scene")] + ET.tostring(tree.getroot(), encoding="unicode") + "\n")
-    return out
+
+    def edit(root: ET.Element) -> None:
+        shapes = [s for s in root.iter("shape") if any(e.get("type") == "lcd" for e in s.iter("emitter"))]
+        if len(shapes) != 1:
+            raise SceneError(f"{scene}: expected one shape with an lcd emitter, found {len(shapes)}")
+        tr = shapes[0].find("transform")
+        if tr is None:
+            tr = ET.SubElement(shapes[0], "transform", {"name": "to_world"})
+        for op in list(tr):
+            tr.remove(op)
+        ET.SubElement(tr, "matrix", {"value": " ".join(f"{v:.12g}" for v in np.asarray(lcd_to_world).ravel())})
+
+    return edit_scene(scene, out, edit)

@@ -42,6 +42,7 @@ import numpy as np
 from ..errors import SceneError
 from ..rig import Rig
 from ..scene_xml import load_scene_xml
+from .scene_file import edit_scene
 
 # Mitsuba local camera frame (x left, y up, z forward) -> the usual vision frame (x right, y down).
 _FLIP = np.diag([-1.0, -1.0, 1.0])
@@ -592,12 +593,6 @@ def write_camera_intrinsics(scene: str | Path, out: str | Path, K: np.ndarray, s
         raise ValueError(f"fx = {fx:.6g} and fy = {fy:.6g} differ by {abs(fx / fy - 1):.2%}; Mitsuba's perspective "
                          f"sensor has square pixels (allowed: {max_aspect_error:.2%})")
     f = (fx + fy) / 2
-    tree = ET.parse(scene, parser=ET.XMLParser(target=ET.TreeBuilder(insert_comments=True)))
-    sensors = [s for s in tree.getroot().iter("sensor") if s.get("type") == "perspective"]
-    if not sensors:
-        raise SceneError(f"{scene}: no <sensor type=\"perspective\"> (the camera) to write intrinsics into")
-    sensor = sensors[0]
-
     def put(parent: ET.Element, tag: str, name: str, value: str) -> None:
         el = next((e for e in parent if e.get("name") == name), None)
         if el is None:
@@ -606,17 +601,19 @@ def write_camera_intrinsics(scene: str | Path, out: str | Path, K: np.ndarray, s
         el.tag = tag
         el.attrib = {"name": name, "value": value}
 
-    put(sensor, "float", "principal_point_offset_y", f"{0.5 - k[1, 2] / hgt:.12g}")
-    put(sensor, "float", "principal_point_offset_x", f"{0.5 - k[0, 2] / wid:.12g}")
-    put(sensor, "string", "fov_axis", "x")
-    put(sensor, "float", "fov", f"{math.degrees(2 * math.atan(wid / 2 / f)):.12g}")
-    film = sensor.find("film")
-    if film is None:
-        film = ET.SubElement(sensor, "film", {"type": "hdrfilm"})
-    put(film, "integer", "height", str(hgt))
-    put(film, "integer", "width", str(wid))
-    ET.indent(tree, space="    ")
-    text = scene.read_text()
-    out.parent.mkdir(parents=True, exist_ok=True)
-    out.write_text(text[:text.find("<scene")] + ET.tostring(tree.getroot(), encoding="unicode") + "\n")
-    return out
+    def edit(root: ET.Element) -> None:
+        sensors = [s for s in root.iter("sensor") if s.get("type") == "perspective"]
+        if not sensors:
+            raise SceneError(f"{scene}: no <sensor type=\"perspective\"> (the camera) to write intrinsics into")
+        sensor = sensors[0]
+        put(sensor, "float", "principal_point_offset_y", f"{0.5 - k[1, 2] / hgt:.12g}")
+        put(sensor, "float", "principal_point_offset_x", f"{0.5 - k[0, 2] / wid:.12g}")
+        put(sensor, "string", "fov_axis", "x")
+        put(sensor, "float", "fov", f"{math.degrees(2 * math.atan(wid / 2 / f)):.12g}")
+        film = sensor.find("film")
+        if film is None:
+            film = ET.SubElement(sensor, "film", {"type": "hdrfilm"})
+        put(film, "integer", "height", str(hgt))
+        put(film, "integer", "width", str(wid))
+
+    return edit_scene(scene, out, edit)

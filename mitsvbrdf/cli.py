@@ -7,6 +7,10 @@ Commands:
         Map and re-rendering metrics of the adaptive method and baselines; tables, figures, HTML.
     train CONFIG [--resume] [--set key=value ...] [--out DIR]
         Train one stage of the method (init, stage1, stage2, finetune, fixed) from a TOML config.
+    capture --out SESSION_DIR [--scene S] [--resume] (--simulate MATERIAL | --camera-folder DIR ...)
+        The adaptive acquisition at the bench, every frame on disk as it arrives (docs/capture.md).
+    calibrate {response,display,color,geometry,intrinsics} --scene S --out S2 ...
+        Calibrate the bench; each result is written into a copy of the scene file.
     simulate SCENE --material PATH --patterns NAME_OR_FILE --out DIR
         Render the capture of a material under patterns through the scene's rig and display
         model; writes one EXR (linear radiance) and one tone-mapped PNG per pattern, the patterns
@@ -314,6 +318,9 @@ def build_parser() -> argparse.ArgumentParser:
     e.add_argument("--out", required=True, help="output folder")
     e.add_argument("--quiet", action="store_true")
     e.set_defaults(func=cmd_evaluate)
+    from .capture.cli import add_parsers
+
+    add_parsers(sub)
     return p
 
 

@@ -6,25 +6,15 @@ import numpy as np
 import pytest
 
 import mitsvbrdf as ms
-from mitsvbrdf.capture.calibrate import (Bench, calibrate_camera_response, calibrate_color, calibrate_display,
-                                         calibrate_lcd_pose, chart_material)
-from mitsvbrdf.capture.devices import SimulatedRig
-from mitsvbrdf.capture.display import diffuse_target, write_display_model
+from mitsvbrdf.capture.calibrate import (calibrate_camera_response, calibrate_color, calibrate_display,
+                                         calibrate_lcd_pose, simulated_bench)
+from mitsvbrdf.capture.display import write_display_model
 from mitsvbrdf.capture.geometry import _posed, write_lcd_pose
 from mitsvbrdf.capture.hdr import Response
 from mitsvbrdf.capture.scene_file import read_camera_calibration, write_camera_calibration
-from mitsvbrdf.capture.session import BracketCapture
 
 SCENE = Path(__file__).resolve().parents[1] / "scenes" / "lcd_rig.xml"
 CROSSTALK = np.array([[0.8, 0.15, 0.05], [0.1, 0.8, 0.1], [0.05, 0.2, 0.75]])
-
-
-def simulated_bench(truth: ms.Rig, size: int, exposures=(1.0,), **camera) -> tuple[Bench, SimulatedRig]:
-    targets = {"white": diffuse_target(truth, size), "chart": chart_material(size),
-               "mirror": ms.SVBRDF.constant(diffuse=0.0, specular=1.0, roughness=0.001, size=size)}
-    camera = {"method": "reference", **camera}
-    sim = SimulatedRig(targets["white"], truth, **camera)
-    return Bench(BracketCapture(sim, sim, exposures, response=sim.response), lambda t: sim.place(targets[t])), sim
 
 
 def test_camera_response_is_recovered_from_a_simulated_bracket(rig):

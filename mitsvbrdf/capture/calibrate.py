@@ -54,6 +54,22 @@ class Bench:
         return np.stack([self.capture.frame(t) for t in self.capture.exposures])
 
 
+def calibration_targets(size: int, rig: Rig, albedo: float = 0.8) -> dict[str, SVBRDF]:
+    """The calibration targets as materials on a size x size texel grid, for simulation."""
+    return {"white": diffuse_target(rig, size, albedo), "chart": chart_material(size),
+            "mirror": SVBRDF.constant(diffuse=0.0, specular=1.0, roughness=0.001, size=size)}
+
+
+def simulated_bench(truth: Rig, size: int, exposures=(1.0,), **camera) -> tuple[Bench, "SimulatedRig"]:
+    """A bench on the simulated rig (``camera``: :class:`SimulatedRig` options; the reference
+    renderer unless ``method`` says otherwise) whose ``place`` swaps in the targets."""
+    from .devices import SimulatedRig
+
+    targets = calibration_targets(size, truth)
+    sim = SimulatedRig(targets["white"], truth, **{"method": "reference", **camera})
+    return Bench(BracketCapture(sim, sim, exposures, response=sim.response), lambda t: sim.place(targets[t])), sim
+
+
 def uniform(cells: tuple[int, int], drive: float = 1.0) -> np.ndarray:
     return np.full((3, *cells), drive, np.float32)
 

@@ -96,6 +96,10 @@ class SimulatedRig:
             raise ValueError(f"gain must be positive, got {gain}")
         self.color_matrix = None if color_matrix is None else np.asarray(color_matrix, np.float64)
         self.place(svbrdf)
+        if method == "mitsuba" and Rig.from_scene(rig.source).display != rig.display:
+            raise ValueError("method='mitsuba' renders the scene file's display model, and this rig's was changed "
+                             "in memory: write it into a scene file (capture.display.write_display_model) and read "
+                             "the rig from there")
         self.rig, self.method, self.spp, self.seed = rig, method, spp, seed
         self.gain, self.noise, self.response, self.levels = gain, noise, response, levels
         self.cells = rig.lcd_cells

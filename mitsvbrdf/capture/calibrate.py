@@ -27,7 +27,7 @@ from ..rig import Rig
 from ..svbrdf import SVBRDF
 from .color import chart_reference_rgb, delta_e_2000, fit_color_matrix
 from .display import diffuse_target, fit_decay_power, fit_gamma
-from .geometry import cell_local, fit_lcd_pose
+from .geometry import fit_lcd_pose, ray_offsets
 from .hdr import Response, calibrate_response
 from .session import BracketCapture
 
@@ -44,14 +44,11 @@ class Bench:
 
     def radiance(self, pattern: np.ndarray) -> np.ndarray:
         """(H, W, 3) merged linear radiance under ``pattern`` (3, h, w)."""
-        self.capture.display.show(pattern)
-        frames = [self.capture.frame(t) for t in self.capture.exposures]
-        return self.capture.radiance(frames)[0].transpose(1, 2, 0)
+        return self.capture.radiance(self.capture.bracket(pattern))[0].transpose(1, 2, 0)
 
     def bracket(self, pattern: np.ndarray) -> np.ndarray:
         """Raw frames (K, H, W, 3) of the bracket under ``pattern``."""
-        self.capture.display.show(pattern)
-        return np.stack([self.capture.frame(t) for t in self.capture.exposures])
+        return np.stack(self.capture.bracket(pattern))
 
 
 def calibration_targets(size: int, rig: Rig, albedo: float = 0.8) -> dict[str, SVBRDF]:
@@ -213,7 +210,7 @@ def mirror_correspondences(bench: Bench, rig: Rig, *, contrast: float = 0.2) -> 
         clear = np.abs(on - off) > contrast * np.maximum(on, off)
         valid = clear if valid is None else valid & clear
         bits[axis].append(on > off)
-    bright = np.stack([bench.radiance(uniform(rig.lcd_cells)).mean(-1)])[0]
+    bright = bench.radiance(uniform(rig.lcd_cells)).mean(-1)
     valid &= bright > contrast * bright.max()
     col, row = decode_gray(np.stack(bits["col"])), decode_gray(np.stack(bits["row"]))
     valid &= (col < rig.lcd_cells[1]) & (row < rig.lcd_cells[0])
@@ -240,10 +237,6 @@ def calibrate_lcd_pose(bench: Bench, rig: Rig) -> dict:
     if len(cells) < 20:
         raise ValueError(f"only {len(cells)} LCD cells are clearly seen in the mirror: is the mirror in place?")
     pose = fit_lcd_pose(rig, cells, points)
-    rays = points - rig.camera_position_np()
-    rays[:, 2] *= -1
-    rays /= np.linalg.norm(rays, axis=1, keepdims=True)
-    p = (pose @ cell_local(cells, rig.lcd_cells).T).T[:, :3] - points
-    d = p - (p * rays).sum(1, keepdims=True) * rays
+    d = ray_offsets(pose, rig, cells, points)
     return {"lcd_to_world": pose, "cells": int(len(cells)),
             "rms_mm": float(1e3 * np.sqrt((d ** 2).sum(1).mean()))}

@@ -54,6 +54,16 @@ def _posed(nominal: np.ndarray, x: np.ndarray) -> np.ndarray:
     return m
 
 
+def ray_offsets(lcd_to_world: np.ndarray, rig: Rig, cells: np.ndarray, points: np.ndarray) -> np.ndarray:
+    """(N, 3) offsets of the cell centres (N, 2) of an LCD at ``lcd_to_world`` from the camera rays
+    reflected at their mirror points (N, 3): zero for the true pose and exact points."""
+    rays = points - rig.camera_position_np()
+    rays[:, 2] *= -1  # reflected about the mirror's normal
+    rays /= np.linalg.norm(rays, axis=1, keepdims=True)
+    p = (lcd_to_world @ cell_local(cells, rig.lcd_cells).T).T[:, :3] - points
+    return p - (p * rays).sum(1, keepdims=True) * rays
+
+
 def fit_lcd_pose(rig: Rig, cells: np.ndarray, points: np.ndarray) -> np.ndarray:
     """LCD-to-world matrix (4, 4) from lit cells (N, 2) (row, column) and their mirror points (N, 3)."""
     from scipy.optimize import least_squares
@@ -61,15 +71,8 @@ def fit_lcd_pose(rig: Rig, cells: np.ndarray, points: np.ndarray) -> np.ndarray:
     cells, points = np.asarray(cells), np.asarray(points, float)
     if cells.shape[0] < 4 or points.shape != (cells.shape[0], 3):
         raise ValueError(f"need >= 4 lit cells with one (x, y, z) point each, got {cells.shape} and {points.shape}")
-    cam = rig.camera_position_np()
-    rays = points - cam
-    rays[:, 2] *= -1  # reflected about the mirror's normal
-    rays /= np.linalg.norm(rays, axis=1, keepdims=True)
-    local = cell_local(cells, rig.lcd_cells)
-
     def residuals(x: np.ndarray) -> np.ndarray:
-        p = (_posed(rig.lcd_to_world, x) @ local.T).T[:, :3] - points
-        return (p - (p * rays).sum(1, keepdims=True) * rays).ravel()  # distance from each ray
+        return ray_offsets(_posed(rig.lcd_to_world, x), rig, cells, points).ravel()
 
     res = least_squares(residuals, np.zeros(6), x_scale=np.array([0.01, 0.01, 0.01, 0.001, 0.001, 0.001]))
     return _posed(rig.lcd_to_world, res.x)

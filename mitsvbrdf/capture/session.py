@@ -107,6 +107,11 @@ class BracketCapture:
             raise ValueError(f"the camera returned a frame of shape {f.shape}, expected (H, W, 3)")
         return f
 
+    def bracket(self, pattern: np.ndarray) -> list[np.ndarray]:
+        """Show ``pattern`` (3, h, w) and take the bracket's raw frames."""
+        self.display.show(pattern)
+        return [self.frame(t) for t in self.exposures]
+
     def radiance(self, frames: list[np.ndarray]) -> tuple[np.ndarray, dict[str, int]]:
         """(3, H, W) float32 linear radiance on the texel grid from the bracket's raw frames."""
         rad, counts = merge_frames(np.stack(frames), np.array(self.exposures),
@@ -119,10 +124,7 @@ class BracketCapture:
 
     def __call__(self, patterns: torch.Tensor) -> torch.Tensor:
         """In-memory capture for :meth:`AcquisitionPipeline.acquire`: (1, P, 3, h, w) -> (1, P, 3, H, W)."""
-        out = []
-        for p in patterns[0]:
-            self.display.show(p.cpu().numpy())
-            out.append(torch.from_numpy(self.radiance([self.frame(t) for t in self.exposures])[0]))
+        out = [torch.from_numpy(self.radiance(self.bracket(p.cpu().numpy()))[0]) for p in patterns[0]]
         return torch.stack(out)[None]
 
 

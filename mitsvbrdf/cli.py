@@ -4,7 +4,9 @@ Commands:
     demo [--out DIR]
         The whole method on the bundled material with the shipped networks (the main job).
     evaluate --model NETWORKS --data DIR|procedural --out DIR [--baseline NAME=NETWORKS ...]
-        Map and re-rendering metrics of the adaptive method and baselines; tables, figures, HTML.
+             [--adaptive NAME=NETWORKS ...] [--uniform-lpdf NAME=NETWORKS ...]
+        Map and re-rendering metrics of the adaptive method, its variants and the baselines;
+        tables, figures, HTML.
     train CONFIG [--resume] [--set key=value ...] [--out DIR]
         Train one stage of the method (init, stage1, stage2, finetune, fixed) from a TOML config.
     capture --out SESSION_DIR [--scene S] [--resume] (--simulate MATERIAL | --camera-folder DIR ...)
@@ -178,28 +180,34 @@ def load_materials(data: str, size: int, n: int) -> list:
     return out
 
 
+def _named(spec: str, option: str) -> tuple[str, str]:
+    from .errors import MitsvbrdfError
+
+    name, sep, path = spec.partition("=")
+    if not sep or not name or not path:
+        raise MitsvbrdfError(f"{option} expects NAME=NETWORKS.pt, got {spec!r}")
+    return name, path
+
+
 def cmd_evaluate(args: argparse.Namespace) -> int:
     from .demo import load_pipeline
-    from .evaluation import adaptive_method, evaluate, fixed_pattern_method
-    from .nets import NetworkFileError, network_from_record
-    from .nets.io import read_network_file
+    from .errors import MitsvbrdfError
+    from .evaluation import adaptive_method, baseline_method, evaluate
     from .rig import Rig
-    from .separation import separate_specular
 
     rig = Rig.from_scene(args.scene)
-    methods = {"adaptive": adaptive_method(load_pipeline(args.model, rig), spp=args.spp, seed=args.seed)}
+    runs = [("adaptive", args.model, "initializer")]
+    runs += [(*_named(s, "--adaptive"), "initializer") for s in args.adaptive or []]
+    runs += [(*_named(s, "--uniform-lpdf"), "uniform") for s in args.uniform_lpdf or []]
+    methods = {}
+    for name, path, lpdf_from in runs:
+        pipe = load_pipeline(path, rig, lpdf_from=lpdf_from)
+        methods[name] = adaptive_method(pipe, spp=args.spp, seed=args.seed)
     for spec in args.baseline or []:
-        name, _, path = spec.partition("=")
-        recs = read_network_file(path, "baseline networks")
-        if not isinstance(recs, dict) or not {"patterns", "svbrdf"} <= set(recs):
-            raise NetworkFileError(f"{path}: a fixed-pattern baseline needs networks 'patterns' and 'svbrdf'")
-        pats = network_from_record(recs["patterns"], f"{path}: patterns")().detach()
-        net = network_from_record(recs["svbrdf"], f"{path}: svbrdf").eval()
-
-        def reconstruct(images, patterns, net=net):
-            return net(images, separate_specular(images, patterns, rig) if net.use_spec else None)
-
-        methods[name] = fixed_pattern_method(pats, reconstruct, rig, spp=args.spp, seed=args.seed)
+        name, path = _named(spec, "--baseline")
+        if name in methods:
+            raise MitsvbrdfError(f"two methods are named {name!r}")
+        methods[name] = baseline_method(path, rig, spp=args.spp, seed=args.seed)
     materials = load_materials(args.data, args.size, args.n)
     evaluate(methods, materials, rig, args.out, progress=not args.quiet)
     print((Path(args.out) / "summary.md").read_text())
@@ -308,7 +316,13 @@ def build_parser() -> argparse.ArgumentParser:
     d.set_defaults(func=cmd_demo)
     e = sub.add_parser("evaluate", help="score the adaptive method (and baselines) on a set of materials")
     e.add_argument("--model", required=True, help="networks.pt of stage2/finetune")
-    e.add_argument("--baseline", action="append", metavar="NAME=NETWORKS.pt", help="a fixed-pattern baseline run")
+    e.add_argument("--adaptive", action="append", metavar="NAME=NETWORKS.pt",
+                   help="another adaptive run (stage2/finetune export), e.g. a variant without I^spec")
+    e.add_argument("--uniform-lpdf", action="append", metavar="NAME=NETWORKS.pt",
+                   help="an adaptive run that predicts its patterns from a uniform L_pdf (the Diff. Init. "
+                        "ablation; train it with model.lpdf_from = \"uniform\")")
+    e.add_argument("--baseline", action="append", metavar="NAME=NETWORKS.pt",
+                   help="a baseline run (export of a 'fixed' stage: fixed or learned patterns, or flash)")
     e.add_argument("--data", default="procedural", help="'procedural' (held-out seeds) or a folder of materials")
     e.add_argument("--n", type=int, default=16, help="number of materials (0: all in the folder)")
     e.add_argument("--size", type=int, default=256, help="materials are resampled to size x size")

@@ -264,3 +264,47 @@ def adaptive_method(pipeline, *, method: str = "mitsuba", spp: int = 64, seed: i
         return Capture(acq.patterns, acq.images, acq.svbrdf)
 
     return run
+
+
+def flash_method(flash, reconstructor: Callable[[Tensor], Tensor], rig: Rig) -> Method:
+    """The flash baseline: one image under ``flash`` (a :class:`mitsvbrdf.relight.FlashLight`),
+    ``reconstructor(images (1, 1, 3, H, W)) -> (1, 10, H, W)`` encoded maps. Its capture shows a
+    black LCD pattern: the LCD is off."""
+    from .pipeline import maps_to_svbrdf
+
+    dark = torch.zeros(1, 3, *rig.lcd_cells)
+
+    def run(gt: SVBRDF) -> Capture:
+        with torch.no_grad():
+            imgs = flash(gt, rig)
+            pred = maps_to_svbrdf(reconstructor(imgs))
+        return Capture(dark, imgs[0], pred)
+
+    return run
+
+
+def baseline_method(path: str | Path, rig: Rig, *, spp: int = 64, seed: int = 0) -> Method:
+    """A baseline from the ``networks.pt`` export of a ``fixed`` training stage: its pattern group
+    (fixed or learned) or its flash, and its G_sc. Raises NetworkFileError for other files."""
+    from .nets import NetworkFileError, network_from_record
+    from .nets.io import read_network_file
+    from .separation import separate_specular
+
+    recs = read_network_file(path, "baseline networks")
+    if not isinstance(recs, dict) or "svbrdf" not in recs or not ({"patterns", "flash"} & set(recs)):
+        have = sorted(recs) if isinstance(recs, dict) else type(recs).__name__
+        raise NetworkFileError(f"{path}: a baseline needs networks 'svbrdf' and 'patterns' (or 'flash'), "
+                               f"the file has {have} (use the export of a 'fixed' stage)")
+    net = network_from_record(recs["svbrdf"], f"{path}: svbrdf").eval()
+    if "flash" in recs:
+        return flash_method(network_from_record(recs["flash"], f"{path}: flash"), lambda imgs: net(imgs), rig)
+    pats = network_from_record(recs["patterns"], f"{path}: patterns")().detach()
+    if tuple(pats.shape[1:]) != (3, *rig.lcd_cells):
+        raise NetworkFileError(f"{path}: patterns {tuple(pats.shape[1:])} do not fit this rig's LCD "
+                               f"{(3, *rig.lcd_cells)}")
+
+    def reconstruct(images: Tensor, patterns: Tensor) -> Tensor:
+        return net(images, separate_specular(images, patterns, rig) if net.use_spec else None)
+
+    return fixed_pattern_method(pats, reconstruct, rig, spp=spp, seed=seed)
+

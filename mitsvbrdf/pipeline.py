@@ -10,7 +10,8 @@ baselines and tests:
 * ``l0``: (3, h, w) drive values of the first pattern;
 * ``initializer(i0 (B, 3, H, W)) -> (B, 10, H, W)`` encoded maps (normal and roughness are used);
 * ``lighting(i0, lpdf (B, 1, h, w))`` -> an object with ``patterns`` (B, 4, 3, h, w) in [0, 1];
-* ``reconstructor(images (B, 5, 3, H, W), spec (B, 10, 3, H, W)) -> (B, 10, H, W)`` encoded maps.
+* ``reconstructor(images (B, 5, 3, H, W), spec (B, 10, 3, H, W)) -> (B, 10, H, W)`` encoded maps
+  (``spec`` is None for a reconstructor whose ``use_spec`` attribute is False).
 
 Images are linear radiance on the sample's texel grid. Single-material calls take and return
 tensors without the batch dimension.
@@ -77,7 +78,9 @@ class AcquisitionPipeline(torch.nn.Module):
     @torch.no_grad()
     def reconstruct(self, images: Tensor, patterns: Tensor) -> SVBRDF:
         """Images (B, 5, 3, H, W) under patterns (B, 5, 3, h, w) -> the reconstructed SVBRDF."""
-        spec = separate_specular(images, patterns, self.rig)
+        # a G_sc without the I^spec encoder (Table 3's "Adaptive") takes the images alone
+        use_spec = getattr(self.reconstructor, "use_spec", True)
+        spec = separate_specular(images, patterns, self.rig) if use_spec else None
         return maps_to_svbrdf(self.reconstructor(images, spec))
 
     def all_patterns(self, adaptive: Tensor) -> Tensor:

@@ -7,6 +7,8 @@ capture images):
   (exact, no sampling: one light direction per texel), ``I`` the intensity in W/sr (relative);
 * LCD patterns (e.g. step edges, :func:`mitsvbrdf.patterns.step_edges`) through any renderer.
 
+:class:`FlashLight` is the point light at the camera of the flash baseline.
+
 Images are linear radiance (B, L, 3, H, W). :func:`tonemap` maps them to display values for
 metrics that want a perceptual scale (SSIM, picture files).
 """
@@ -60,6 +62,25 @@ def point_light_images(svbrdf, lights: Tensor, rig: Rig, intensity: float = 0.01
                  cosine=True, dim=-3)
         out.append(f * (intensity / dist2)[None])
     return torch.stack(out, 1)
+
+
+class FlashLight(torch.nn.Module):
+    """A point light co-located with the camera (a flash): the light source of the flash baseline.
+
+    ``forward(svbrdf, rig)`` -> (B, 1, 3, H, W) linear radiance, rendered exactly by
+    :func:`point_light_images` from the rig's camera centre. ``intensity`` in W/sr: the default
+    0.04 W/sr at the default rig's 0.40 m camera distance gives about the irradiance of the LCD at
+    full drive. It has no parameters; it is a module so that a baseline's network file records it.
+    """
+
+    def __init__(self, intensity: float = 0.04):
+        super().__init__()
+        if not intensity > 0:
+            raise ValueError(f"flash intensity must be positive, got {intensity}")
+        self.config = dict(intensity=float(intensity))
+
+    def forward(self, svbrdf, rig: Rig) -> Tensor:
+        return point_light_images(svbrdf, rig.camera_position[None], rig, intensity=self.config["intensity"])
 
 
 def tonemap(images: Tensor, exposure: float | None = None) -> Tensor:

@@ -58,3 +58,36 @@ def test_evaluate_with_a_model_of_another_stage_is_a_clear_error(tmp_path, rig, 
                path)
     assert main(["evaluate", "--model", str(path), "--out", str(tmp_path / "o"), "--quiet"]) == 2
     assert "needs networks ['l0', 'initializer', 'lighting', 'svbrdf']" in capsys.readouterr().err
+
+
+def _export(stage, path):
+    torch.save({n: network_record(m) for n, m in stage.networks().items()}, path)
+    return str(path)
+
+
+def test_evaluate_scores_every_kind_of_baseline_and_adaptive_variant(tmp_path, networks, rig):
+    S, A = STAGES["fixed"], STAGES["stage2"]
+    runs = {
+        "optimized": S(S.Model(patterns="random", learn_patterns=True, svbrdf_width=4), S.Loss(), RenderSettings(), rig),
+        "lpl": S(S.Model(patterns="uniform", learn_patterns=True, svbrdf_width=4), S.Loss(), RenderSettings(), rig),
+        "flash": S(S.Model(light="flash", svbrdf_width=4), S.Loss(), RenderSettings(), rig),
+    }
+    args = ["evaluate", "--model", str(networks), "--data", "procedural", "--n", "1", "--size", "32", "--spp", "2",
+            "--out", str(tmp_path / "eval"), "--quiet"]
+    for name, stage in runs.items():
+        args += ["--baseline", f"{name}={_export(stage, tmp_path / f'{name}.pt')}"]
+    nospec = A(A.Model(lighting_width=4, svbrdf_width=4, use_spec=False), A.Loss(), RenderSettings(), rig)
+    args += ["--adaptive", f"nospec={_export(nospec, tmp_path / 'nospec.pt')}",
+             "--uniform-lpdf", f"diff-init={networks}"]
+    assert main(args) == 0
+    table = (tmp_path / "eval" / "summary.md").read_text()
+    for name in ("adaptive", "nospec", "diff-init", "optimized", "lpl", "flash"):
+        assert f"| {name} |" in table, name
+
+
+def test_evaluate_with_a_malformed_or_foreign_baseline_is_a_clear_error(tmp_path, networks, capsys):
+    base = ["evaluate", "--model", str(networks), "--n", "1", "--size", "32", "--out", str(tmp_path / "o"), "--quiet"]
+    assert main(base + ["--baseline", "monograd"]) == 2
+    assert "--baseline expects NAME=NETWORKS.pt" in capsys.readouterr().err
+    assert main(base + ["--baseline", f"x={networks}"]) == 2  # an adaptive export is not a baseline
+    assert "a baseline needs networks 'svbrdf' and 'patterns' (or 'flash')" in capsys.readouterr().err

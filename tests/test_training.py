@@ -11,6 +11,7 @@ import torch
 
 import mitsvbrdf as ms
 from mitsvbrdf.data.procedural import generate
+from mitsvbrdf.relight import FlashLight
 from mitsvbrdf.training import STAGES, ConfigError, RenderSettings, Trainer, TrainingError, load_config, train
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -100,6 +101,68 @@ def test_a_few_steps_on_one_batch_reduce_the_loss(rig):
         loss.backward()
         opt.step()
     assert float(loss) < 0.8 * first
+
+
+def test_learned_pattern_group_gets_gradients_through_the_mitsuba_renderer(rig):
+    S = STAGES["fixed"]
+    stage = S(S.Model(patterns="random", learn_patterns=True, svbrdf_width=4), S.Loss(), RenderSettings("mitsuba", 1),
+              rig)
+    stage(generate(2, size=32, seed=3), seed=0)["loss"].backward()
+    g = stage.nets["patterns"].logits.grad
+    assert g is not None and torch.isfinite(g).all() and float(g.abs().sum()) > 0
+
+
+def test_fixed_pattern_group_stays_a_buffer_without_gradients(rig):
+    S = STAGES["fixed"]
+    stage = S(S.Model(patterns="monograd", svbrdf_width=4), S.Loss(), RenderSettings("mitsuba", 1), rig)
+    assert not list(stage.nets["patterns"].parameters())
+    assert torch.equal(stage.nets["patterns"](), ms.patterns.load_patterns("monograd", *rig.lcd_cells))
+
+
+def test_single_learned_pattern_is_the_lpl_baseline(rig):
+    S = STAGES["fixed"]
+    stage = S(S.Model(patterns="uniform", learn_patterns=True, svbrdf_width=4), S.Loss(), RenderSettings("mitsuba", 1),
+              rig)
+    assert stage.nets["patterns"]().shape == (1, 3, *rig.lcd_cells)
+    assert stage.nets["svbrdf"].config["num_images"] == 1
+
+
+def test_flash_baseline_sees_one_image_under_a_light_at_the_camera(rig):
+    S = STAGES["fixed"]
+    stage = S(S.Model(light="flash", svbrdf_width=4), S.Loss(), RenderSettings("mitsuba", 1), rig)
+    batch = generate(2, size=32, seed=4)
+    imgs = stage.nets["flash"](batch, rig)
+    assert imgs.shape == (2, 1, 3, 32, 32) and float(imgs.min()) >= 0
+    out = stage(batch, seed=0)
+    out["loss"].backward()
+    assert "patterns" not in stage.nets and torch.isfinite(out["loss"])
+
+
+def test_flash_highlight_of_a_flat_glossy_sample_is_nearest_the_camera(rig):
+    # light and camera coincide, so the half vector is the view direction: on a flat sample it is
+    # closest to the normal at the texels nearest the camera's foot point
+    glossy = ms.SVBRDF.constant(size=32, diffuse=(0.0, 0.0, 0.0), specular=(1.0, 1.0, 1.0), roughness=0.1)
+    img = FlashLight()(glossy, rig)[0, 0, 0]
+    pts = rig.surface_points((32, 32))
+    foot = rig.camera_position[:2]
+    nearest = (pts[..., :2] - foot).square().sum(-1).flatten().argmin()
+    assert int(img.flatten().argmax()) == int(nearest)
+
+
+def test_flash_baseline_refuses_lcd_options(rig):
+    S = STAGES["fixed"]
+    with pytest.raises(ms.MitsvbrdfError, match="flash"):
+        S(S.Model(light="flash", learn_patterns=True), S.Loss(), RenderSettings(), rig)
+    with pytest.raises(ms.MitsvbrdfError, match="model.light"):
+        S(S.Model(light="laser"), S.Loss(), RenderSettings(), rig)
+
+
+def test_adaptive_stage_without_spec_uses_a_single_encoder(rig):
+    S = STAGES["stage2"]
+    stage = S(S.Model(lighting_width=4, svbrdf_width=4, use_spec=False), S.Loss(), RenderSettings("mitsuba", 1), rig)
+    assert not stage.nets["svbrdf"].use_spec
+    out = stage(generate(2, size=32, seed=5), seed=0)
+    assert torch.isfinite(out["loss"])
 
 
 def test_pretrained_networks_with_wrong_names_are_refused(rig):

@@ -47,12 +47,38 @@ class Initializer(nn.Module):
 
 
 class PatternSet(nn.Module):
-    """A fixed group of patterns (n, 3, h, w) kept with a network file (the fixed-pattern baselines)."""
+    """A group of patterns (n, 3, h, w) in [0, 1] kept with a network file: fixed (the pattern
+    baselines; a buffer) or ``learnable`` (the optimized-pattern baselines LPL and LPL+:
+    parameterised through a sigmoid like :class:`LearnedPattern`).
 
-    def __init__(self, count: int = 5, cells: tuple[int, int] = (32, 32)):
+    Call :meth:`set` to give the patterns their values (a learnable set keeps them inside
+    [0.02, 0.98], where the sigmoid still passes gradients).
+    """
+
+    def __init__(self, count: int = 5, cells: tuple[int, int] = (32, 32), learnable: bool = False):
         super().__init__()
         self.config = dict(count=count, cells=tuple(cells))
-        self.register_buffer("patterns", torch.zeros(count, 3, *cells))
+        if learnable:  # the key stays out of config for fixed sets, so older files load unchanged
+            self.config["learnable"] = True
+            self.logits = nn.Parameter(torch.zeros(count, 3, *cells))
+        else:
+            self.register_buffer("patterns", torch.zeros(count, 3, *cells))
+
+    @property
+    def learnable(self) -> bool:
+        return "logits" in self._parameters
+
+    @torch.no_grad()
+    def set(self, patterns: Tensor) -> None:
+        """Give the set its values: (n, 3, h, w) drive values in [0, 1]."""
+        want = (self.config["count"], 3, *self.config["cells"])
+        if tuple(patterns.shape) != want:
+            raise ValueError(f"patterns must be {want}, got {tuple(patterns.shape)}")
+        if self.learnable:
+            p = patterns.clamp(0.02, 0.98)
+            self.logits.copy_(torch.log(p / (1 - p)))
+        else:
+            self.patterns.copy_(patterns)
 
     def forward(self) -> Tensor:
-        return self.patterns
+        return torch.sigmoid(self.logits) if self.learnable else self.patterns

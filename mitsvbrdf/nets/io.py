@@ -19,9 +19,10 @@ def registry() -> dict[str, type[nn.Module]]:
     from .lighting import LightingPredictor
     from .point import PointPredictor
     from .svbrdf_net import SVBRDFPredictor
+    from ..relight import FlashLight
 
     return {c.__name__: c for c in (Initializer, LearnedPattern, PatternSet, LightingPredictor, PointPredictor,
-                                   SVBRDFPredictor)}
+                                   SVBRDFPredictor, FlashLight)}
 
 
 def network_record(net: nn.Module) -> dict:

@@ -9,7 +9,12 @@ rendering) and returns its scalar losses; ``"loss"`` is the one minimised.
   and the initializer frozen (from ``init``).
 * ``stage2``: G_l (from stage 1) + G_sc with I^spec, lambda_inv = 0.05.
 * ``finetune``: G_sc alone on captures with G_l's patterns (G_l frozen), e.g. at higher spp.
-* ``fixed``: G_sc on a fixed pattern group (the baselines of the evaluation).
+  ``model.use_spec = false`` in stage 2 and fine-tuning gives the paper's Table 3 "Adaptive"
+  (G_sc a single-encoder NAFNet on the images, like the baselines).
+* ``fixed``: G_sc on a pattern group that is the same for every material (the evaluation's
+  baselines): a named or stored group; ``learn_patterns`` optimises the group jointly with G_sc
+  through the renderer (5 patterns: "Optimized"/LPL+; 1 pattern: LPL); ``light = "flash"``
+  replaces the LCD by a point light at the camera (the flash baseline).
 
 Tensors: maps (B, C, H, W); patterns (B, P, 3, h, w) drive values; images (B, P, 3, H, W) linear.
 """
@@ -28,6 +33,7 @@ from ..losses import importance_consistency_loss, inverse_importance_loss, map_l
 from ..nets import (Initializer, LearnedPattern, LightingPredictor, PatternSet, PointPredictor, SVBRDFPredictor,
                     network_from_record)
 from ..patterns import load_patterns
+from ..relight import FlashLight
 from ..render import render
 from ..rig import Rig
 from ..separation import diffuse_irradiance, separate_specular
@@ -83,8 +89,12 @@ class TrainingStage(nn.Module):
     def capture(self, batch: SVBRDF, patterns: Tensor, seed: int, generator: torch.Generator) -> Tensor:
         cfg = self.render_cfg
         extra = {"mode": cfg.ltc_mode} if cfg.method == "ltc" else {}
-        imgs = render(batch, patterns, self.rig, method=cfg.method, spp=cfg.spp, seed=seed, **extra)
-        return imgs if self.render_cfg.noise is None else self.render_cfg.noise(imgs, generator)
+        return self.sensor(render(batch, patterns, self.rig, method=cfg.method, spp=cfg.spp, seed=seed, **extra),
+                           generator)
+
+    def sensor(self, images: Tensor, generator: torch.Generator) -> Tensor:
+        """The configured sensor noise on rendered images (unchanged without a noise model)."""
+        return images if self.render_cfg.noise is None else self.render_cfg.noise(images, generator)
 
     def first_image(self, batch: SVBRDF, seed: int, g: torch.Generator) -> tuple[Tensor, Tensor]:
         """(L_0 (3, h, w), I_0 (B, 3, H, W))."""
@@ -138,6 +148,7 @@ class AdaptiveModel:
     svbrdf_blocks: list[int] = field(default_factory=lambda: [1, 1, 1])
     lpdf_from: str = "initializer"   # "initializer" | "ground_truth" | "uniform" (Diff. Init. ablation)
     lpdf_stride: int = 4
+    use_spec: bool = True            # G_sc's second encoder on I^spec (False: Table 3's "Adaptive")
 
 
 @dataclass
@@ -222,12 +233,16 @@ class Stage2(AdaptiveStage):
 
     def __init__(self, model: AdaptiveModel, loss: AdaptiveLoss, render_settings: RenderSettings, rig: Rig):
         super().__init__(model, loss, render_settings, rig)
-        self.nets["svbrdf"] = SVBRDFPredictor(5, model.svbrdf_width, tuple(model.svbrdf_blocks))
+        self.nets["svbrdf"] = SVBRDFPredictor(5, model.svbrdf_width, tuple(model.svbrdf_blocks),
+                                              use_spec=model.use_spec)
+
+    def reconstruct(self, images: Tensor, patterns: Tensor) -> Tensor:
+        net = self.nets["svbrdf"]
+        return net(images, separate_specular(images, patterns, self.rig) if net.use_spec else None)
 
     def forward(self, batch: SVBRDF, seed: int) -> dict[str, Tensor]:
         patterns, images, losses = self.adaptive_captures(batch, seed)
-        pred = self.nets["svbrdf"](images, separate_specular(images, patterns, self.rig))
-        losses["reconstruction"] = map_l1(pred, batch.encoded())
+        losses["reconstruction"] = map_l1(self.reconstruct(images, patterns), batch.encoded())
         return self.total(losses)
 
 
@@ -240,8 +255,7 @@ class Finetune(Stage2):
     def forward(self, batch: SVBRDF, seed: int) -> dict[str, Tensor]:
         with torch.no_grad():
             patterns, images, _ = self.adaptive_captures(batch, seed)
-        pred = self.nets["svbrdf"](images, separate_specular(images, patterns, self.rig))
-        rec = map_l1(pred, batch.encoded())
+        rec = map_l1(self.reconstruct(images, patterns), batch.encoded())
         return {"loss": self.loss_cfg.reconstruction * rec, "reconstruction": rec}
 
 
@@ -250,7 +264,10 @@ class Finetune(Stage2):
 
 @dataclass
 class FixedModel:
-    patterns: str = "monograd"   # a family name or a .npy/.pt/PNG file of 5 patterns
+    patterns: str = "monograd"   # a family name or a .npy/.pt/PNG file; with learn_patterns, the start
+    learn_patterns: bool = False  # optimise the group with G_sc (LPL+ from 5 patterns, LPL from 1)
+    light: str = "lcd"           # "lcd" | "flash" (one image under a point light at the camera)
+    flash_intensity: float = 0.04  # W/sr, light = "flash"
     svbrdf_width: int = 16
     svbrdf_blocks: list[int] = field(default_factory=lambda: [1, 1, 1])
     use_spec: bool = False
@@ -266,19 +283,36 @@ class FixedStage(TrainingStage):
 
     def __init__(self, model: FixedModel, loss: FixedLoss, render_settings: RenderSettings, rig: Rig):
         super().__init__(model, loss, render_settings, rig)
-        pats = load_patterns(model.patterns, *rig.lcd_cells)
-        rig.check_patterns(pats)
-        self.nets["patterns"] = PatternSet(pats.shape[0], rig.lcd_cells)
-        self.nets["patterns"].patterns.copy_(pats)
-        self.nets["svbrdf"] = SVBRDFPredictor(pats.shape[0], model.svbrdf_width, tuple(model.svbrdf_blocks),
+        if model.light not in ("lcd", "flash"):
+            raise MitsvbrdfError(f"model.light must be 'lcd' or 'flash', got {model.light!r}")
+        if model.light == "flash":
+            if model.learn_patterns or model.use_spec:
+                raise MitsvbrdfError("model.light = 'flash' has no LCD patterns: learn_patterns and use_spec "
+                                     "must be false")
+            self.nets["flash"] = FlashLight(model.flash_intensity)
+            count = 1
+        else:
+            pats = load_patterns(model.patterns, *rig.lcd_cells)
+            rig.check_patterns(pats)
+            count = pats.shape[0]
+            self.nets["patterns"] = PatternSet(count, rig.lcd_cells, learnable=model.learn_patterns)
+            self.nets["patterns"].set(pats)
+        self.nets["svbrdf"] = SVBRDFPredictor(count, model.svbrdf_width, tuple(model.svbrdf_blocks),
                                               use_spec=model.use_spec)
 
     def forward(self, batch: SVBRDF, seed: int) -> dict[str, Tensor]:
         g = _generator(seed, batch.device)
-        pats = self.nets["patterns"]()
-        with torch.no_grad():
-            images = self.capture(batch, pats, seed, g)
-            spec = separate_specular(images, pats, self.rig) if self.model_cfg.use_spec else None
+        if self.model_cfg.light == "flash":
+            with torch.no_grad():
+                images = self.sensor(self.nets["flash"](batch, self.rig), g)
+            pats, spec = None, None
+        else:
+            pats = self.nets["patterns"]()
+            # the renderer's gradients reach the patterns only when they are learned
+            with torch.set_grad_enabled(self.model_cfg.learn_patterns):
+                images = self.capture(batch, pats, seed, g)
+            with torch.no_grad():
+                spec = separate_specular(images, pats, self.rig) if self.model_cfg.use_spec else None
         rec = map_l1(self.nets["svbrdf"](images, spec), batch.encoded())
         return {"loss": self.loss_cfg.reconstruction * rec, "reconstruction": rec}
 

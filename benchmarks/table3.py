@@ -5,6 +5,7 @@ materials and on the sample materials.
     .venv/bin/python benchmarks/table3.py                  # CPU scale (train/*-small.toml, 32 px)
     python3 benchmarks/table3.py --scale full              # full scale on a GPU (train/*.toml, 256 px)
     .venv/bin/python benchmarks/table3.py --eval-only      # re-score finished runs
+    python3 benchmarks/table3.py --scale full --steps-scale 0.05 --jobs 6   # a short GPU study
 
 Trains every run of :data:`RUNS` in order with ``mitsvbrdf train`` (a finished run, one with
 ``networks.pt``, is kept; an interrupted one resumes from its checkpoint), then runs
@@ -26,6 +27,7 @@ import csv
 import subprocess
 import sys
 import time
+from dataclasses import dataclass, field
 from pathlib import Path
 
 ROOT = Path(__file__).resolve().parent.parent
@@ -41,23 +43,86 @@ SCALES = {"small": dict(suffix="-small", size=32, spp=16, n=16),
           "full": dict(suffix="", size=256, spp=64, n=64)}
 
 
-def train_all(suffix: str, python: str) -> None:
+@dataclass
+class Run:
+    """One training run of the study: its config, overrides, output folder and the run it starts from."""
+
+    name: str
+    config: Path
+    out: Path
+    parent: str | None
+    overrides: list[str] = field(default_factory=list)
+
+
+def plan(suffix: str, steps_scale: float) -> dict[str, Run]:
+    """The runs of :data:`RUNS` at a scale. ``steps_scale`` multiplies every run's steps (budgets
+    stay equal: every G_sc budget scales alike) and tags the output folders ``-x<scale>``."""
+    from mitsvbrdf.training import load_config
+
+    tag = "" if steps_scale == 1 else f"-x{steps_scale:g}"
+    runs: dict[str, Run] = {}
     for name in RUNS:
-        run = ROOT / "runs" / f"{name}{suffix}"
-        if (run / "networks.pt").exists():
-            print(f"[table3] {name}{suffix}: done, kept")
-            continue
-        cmd = [python, "-m", "mitsvbrdf", "train", str(ROOT / "train" / f"{name}{suffix}.toml"), "--quiet"]
-        if (run / "checkpoint.pt").exists():
-            cmd.append("--resume")
-        print(f"[table3] {' '.join(cmd[1:])}", flush=True)
-        t = time.perf_counter()
-        subprocess.run(cmd, cwd=ROOT, check=True)
-        print(f"[table3] {name}{suffix}: {time.perf_counter() - t:.0f} s", flush=True)
+        path = ROOT / "train" / f"{name}{suffix}.toml"
+        cfg = load_config(path)
+        parent = Path(cfg.pretrained.networks).parent.name + tag if cfg.pretrained.networks else None
+        run = Run(name, path, ROOT / "runs" / f"{name}{suffix}{tag}", parent)
+        run.overrides.append(f'out="{run.out}"')
+        if parent:
+            run.overrides.append(f'pretrained.networks="{ROOT / "runs" / parent / "networks.pt"}"')
+        if steps_scale != 1:
+            steps = max(1, round(cfg.train.steps * steps_scale))
+            run.overrides += [f"train.steps={steps}",
+                              f"train.checkpoint_every={max(1, min(cfg.train.checkpoint_every, steps))}"]
+        runs[run.out.name] = run
+    return runs
 
 
-def evaluate(suffix: str, data: str, out: Path, size: int, spp: int, n: int, python: str) -> list[dict]:
-    nets = lambda name: str(ROOT / "runs" / f"{name}{suffix}" / "networks.pt")  # noqa: E731
+def train_all(runs: dict[str, Run], python: str, jobs: int = 1) -> None:
+    """Train every unfinished run, up to ``jobs`` at once, each after the run it starts from. With
+    more than one job each run's output goes to ``<out>/train.log``."""
+    done = {k for k, r in runs.items() if (r.out / "networks.pt").exists()}
+    for k in sorted(done):
+        print(f"[table3] {k}: done, kept")
+    todo = [k for k in runs if k not in done]
+    active: dict[str, tuple[subprocess.Popen, float]] = {}
+    while todo or active:
+        for k in list(todo):
+            if len(active) >= jobs:
+                break
+            r = runs[k]
+            if r.parent and r.parent not in done:
+                continue
+            cmd = [python, "-m", "mitsvbrdf", "train", str(r.config), "--quiet"]
+            cmd += [a for o in r.overrides for a in ("--set", o)]
+            if (r.out / "checkpoint.pt").exists():
+                cmd.append("--resume")
+            print(f"[table3] start {k}: {' '.join(cmd[1:])}", flush=True)
+            log = None
+            if jobs > 1:
+                r.out.mkdir(parents=True, exist_ok=True)
+                log = open(r.out / "train.log", "a")
+            active[k] = (subprocess.Popen(cmd, cwd=ROOT, stdout=log, stderr=subprocess.STDOUT if log else None),
+                         time.perf_counter())
+            todo.remove(k)
+        if not active:
+            raise RuntimeError(f"runs {todo} wait for runs that are neither done nor planned")
+        time.sleep(1)
+        for k, (proc, t0) in list(active.items()):
+            if proc.poll() is None:
+                continue
+            del active[k]
+            if proc.returncode != 0:
+                for other, _ in active.values():
+                    other.terminate()  # they checkpoint; a rerun resumes them
+                raise RuntimeError(f"run {k} failed (exit {proc.returncode}); see its output"
+                                   + (f" in {runs[k].out / 'train.log'}" if jobs > 1 else ""))
+            done.add(k)
+            print(f"[table3] {k}: {time.perf_counter() - t0:.0f} s", flush=True)
+
+
+def evaluate(runs: dict[str, Run], data: str, out: Path, size: int, spp: int, n: int, python: str) -> list[dict]:
+    by_name = {r.name: r for r in runs.values()}
+    nets = lambda name: str(by_name[name].out / "networks.pt")  # noqa: E731
     cmd = [python, "-m", "mitsvbrdf", "evaluate", "--model", nets("finetune-nospec"),
            "--adaptive", f"adaptive+spec={nets('finetune')}", "--uniform-lpdf", f"diff-init={nets('finetune-diffinit')}"]
     for b in BASELINES:
@@ -65,23 +130,37 @@ def evaluate(suffix: str, data: str, out: Path, size: int, spp: int, n: int, pyt
     cmd += ["--data", data, "--n", str(n), "--size", str(size), "--spp", str(spp), "--out", str(out)]
     print(f"[table3] {' '.join(cmd[1:])}", flush=True)
     subprocess.run(cmd, cwd=ROOT, check=True)
-    with open(out / "summary.csv") as f:
+    with open(out / "metrics.csv") as f:
         return list(csv.DictReader(f))
 
 
-def verdict(summary: list[dict]) -> list[str]:
-    avg = {r["method"]: float(r["rmse_average"]) for r in summary}
-    ours = avg["adaptive"]
-    worse = [b for b in BASELINES if avg[b] <= ours]
-    lines = [f"- adaptive average map RMSE {ours:.4f}; baselines: "
-             + ", ".join(f"{b} {avg[b]:.4f}" for b in BASELINES) + ".",
-             "- **Claim (Table 3) holds**: adaptive is lower than every baseline." if not worse else
-             f"- **Claim (Table 3) does not hold**: {', '.join(worse)} reach{'es' if len(worse) == 1 else ''} "
-             f"an average RMSE at or below adaptive's.",
-             f"- Ablation: diff-init {avg['diff-init']:.4f} vs adaptive {ours:.4f}: "
-             + ("**worse than adaptive, as claimed**." if avg["diff-init"] > ours else "**not worse: claim does not hold**."),
-             f"- Full method (adaptive+spec, with I^spec): {avg['adaptive+spec']:.4f}."]
-    return lines
+def paired(rows: list[dict], a: str, b: str) -> tuple[float, float, int, int]:
+    """Average map RMSE of method ``b`` minus method ``a`` over the materials both scored: (mean
+    difference, its standard error, materials where ``a`` is lower, materials)."""
+    by = {(r["method"], r["material"]): float(r["rmse_average"]) for r in rows}
+    d = [by[(b, m)] - by[(a, m)] for (meth, m) in by if meth == a and (b, m) in by]
+    n = len(d)
+    mean = sum(d) / n
+    se = (sum((x - mean) ** 2 for x in d) / (n - 1) / n) ** 0.5 if n > 1 else float("nan")
+    return mean, se, sum(x > 0 for x in d), n
+
+
+def verdict(rows: list[dict]) -> list[str]:
+    """The claims on one material set, with paired per-material differences (positive: adaptive better)."""
+    def line(other: str) -> str:
+        mean, se, wins, n = paired(rows, "adaptive", other)
+        sig = "" if not se == se else (" (beyond 2 standard errors)" if abs(mean) > 2 * se else " (within 2 standard errors)")
+        return f"{other} - adaptive = {mean:+.4f} +- {se:.4f}{sig}, adaptive lower on {wins}/{n} materials"
+
+    diffs = {b: paired(rows, "adaptive", b)[0] for b in BASELINES + ["diff-init"]}
+    worse = [b for b in BASELINES if diffs[b] <= 0]
+    return ["- Paired differences of the average map RMSE (positive: adaptive is better):",
+            *[f"  - {line(b)}" for b in BASELINES + ["diff-init", "adaptive+spec"]],
+            "- **Claim (Table 3) holds**: adaptive's mean is lower than every baseline's." if not worse else
+            f"- **Claim (Table 3) does not hold**: {', '.join(worse)} reach{'es' if len(worse) == 1 else ''} a mean "
+            "average RMSE at or below adaptive's.",
+            "- Ablation: " + ("**diff-init is worse than adaptive, as claimed**." if diffs["diff-init"] > 0 else
+                              "**diff-init is not worse than adaptive: the claim does not hold**.")]
 
 
 def main() -> None:
@@ -90,32 +169,42 @@ def main() -> None:
     ap.add_argument("--eval-only", action="store_true", help="score the finished runs, train nothing")
     ap.add_argument("--train-only", action="store_true", help="train the runs, score nothing")
     ap.add_argument("--n", type=int, default=0, help="procedural materials (default: per scale)")
+    ap.add_argument("--steps-scale", type=float, default=1.0,
+                    help="multiply every run's steps (equal budgets stay equal); runs go to runs/<name>-x<scale>")
+    ap.add_argument("--jobs", type=int, default=1, help="runs trained at once (e.g. several on one GPU)")
     ap.add_argument("--out", default=str(ROOT / "docs" / "evaluation"))
     args = ap.parse_args()
     sc = SCALES[args.scale]
     python = sys.executable
+    if args.steps_scale <= 0 or args.jobs < 1:
+        ap.error("--steps-scale must be positive and --jobs at least 1")
+    runs = plan(sc["suffix"], args.steps_scale)
     if not args.eval_only:
-        train_all(sc["suffix"], python)
+        train_all(runs, python, args.jobs)
     if args.train_only:
         return
-    out = Path(args.out) / f"table3-{args.scale}"
+    tag = "" if args.steps_scale == 1 else f"-x{args.steps_scale:g}"
+    out = Path(args.out) / f"table3-{args.scale}{tag}"
     sets = [("procedural", "procedural", args.n or sc["n"])]
     if SAMPLES.is_dir():
         sets.append(("samples", str(SAMPLES), 0))
     else:
         print(f"[table3] {SAMPLES} not found: the sample materials are skipped")
-    text = [f"# Table 3 at {args.scale} scale\n",
-            f"Written by `benchmarks/table3.py --scale {args.scale}` (configs `train/*{sc['suffix']}.toml`; every "
-            f"G_sc trained for the same number of steps). Map RMSE on encoded maps; captures simulated with "
-            f"Mitsuba at {sc['spp']} spp, materials at {sc['size']} px.\n"]
+    steps = "" if args.steps_scale == 1 else f" --steps-scale {args.steps_scale:g}"
+    text = [f"# Table 3 at {args.scale} scale{tag}\n",
+            f"Written by `benchmarks/table3.py --scale {args.scale}{steps}` (configs `train/*{sc['suffix']}.toml`"
+            f"{', every run at ' + format(args.steps_scale, 'g') + ' x its steps' if steps else ''}; every G_sc "
+            f"trained for the same number of steps). Map RMSE on encoded maps; captures simulated with Mitsuba "
+            f"at {sc['spp']} spp, materials at {sc['size']} px.\n"]
     for label, data, n in sets:
-        summary = evaluate(sc["suffix"], data, out / label, sc["size"], sc["spp"], n, python)
+        rows = evaluate(runs, data, out / label, sc["size"], sc["spp"], n, python)
         table = (out / label / "summary.md").read_text().strip()
-        what = f"{n} held-out procedural materials (seeds from 1 000 000)" if label == "procedural" else \
-            f"the {summary[0]['materials']} materials of ../shared/data/svbrdf_samples"
-        text += [f"## {label}: {what}\n", table + "\n", *verdict(summary), "",
+        count = len({r["material"] for r in rows})
+        what = f"{count} held-out procedural materials (seeds from 1 000 000)" if label == "procedural" else \
+            f"the {count} materials of ../shared/data/svbrdf_samples"
+        text += [f"## {label}: {what}\n", table + "\n", *verdict(rows), "",
                  f"Figures: `table3-{args.scale}/{label}/index.html`.\n"]
-    (Path(args.out) / f"table3-{args.scale}.md").write_text("\n".join(text))
+    (Path(args.out) / f"table3-{args.scale}{tag}.md").write_text("\n".join(text))
     print("\n".join(text))
 
 

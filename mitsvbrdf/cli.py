@@ -166,7 +166,12 @@ def load_materials(data: str, size: int, n: int) -> list:
         from .training.config import TEST_SEED_BASE
 
         mats = generate(n, size=size, seed=TEST_SEED_BASE)
-        return [mats[i] for i in range(n)]
+        out = []
+        for i in range(n):
+            m = mats[i]
+            m.name = f"procedural:{TEST_SEED_BASE}:{i}"  # the batch's name is its first index
+            out.append(m)
+        return out
     root = Path(data)
     if not root.is_dir():
         raise MaterialError(f"--data {data!r} is neither 'procedural' nor a folder")

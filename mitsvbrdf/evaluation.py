@@ -20,6 +20,7 @@ from __future__ import annotations
 
 import csv
 import html
+import re
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Callable, Iterable
@@ -115,8 +116,12 @@ def evaluate(methods: dict[str, Method], materials: Iterable[SVBRDF], rig: Rig, 
     if not materials:
         raise ValueError("no materials to evaluate")
     bar = tqdm(total=len(materials) * len(methods), desc="evaluate", disable=not progress)
+    seen: set[str] = set()
     for i, gt in enumerate(materials):
         name = gt.name or f"material_{i:03d}"
+        if name in seen:  # rows and figures are keyed by name
+            name = f"{name}_{i:03d}"
+        seen.add(name)
         shown = {}
         for mname, method in methods.items():
             cap = method(gt)
@@ -131,7 +136,7 @@ def evaluate(methods: dict[str, Method], materials: Iterable[SVBRDF], rig: Rig, 
             shown[mname] = (cap, tp)
             bar.update(1)
         if figures:
-            path = out / "figures" / f"{name}.png"
+            path = out / "figures" / f"{_file_stem(name)}.png"
             material_figure(gt, shown, tg, path)
             figs.append((name, f"figures/{path.name}"))
     bar.close()
@@ -182,6 +187,12 @@ def _write_index(out: Path, figs: list[tuple[str, str]], lp_note: str) -> None:
     (out / "index.html").write_text(
         "<!doctype html><html><head><meta charset='utf-8'><title>mitsvbrdf evaluation</title></head><body>"
         f"<h1>Evaluation</h1><pre>{html.escape(table)}</pre><p>{html.escape(lp_note)}</p>{body}</body></html>\n")
+
+
+def _file_stem(name: str) -> str:
+    """A material name as a portable file name: characters other than letters, digits, ``.``,
+    ``_`` and ``-`` (e.g. the colons of "procedural:1000000:0") become ``-``."""
+    return re.sub(r"[^A-Za-z0-9._-]", "-", name).strip(".") or "material"
 
 
 def _display(t: Tensor) -> np.ndarray:

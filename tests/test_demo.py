@@ -91,3 +91,13 @@ def test_evaluate_with_a_malformed_or_foreign_baseline_is_a_clear_error(tmp_path
     assert "--baseline expects NAME=NETWORKS.pt" in capsys.readouterr().err
     assert main(base + ["--baseline", f"x={networks}"]) == 2  # an adaptive export is not a baseline
     assert "a baseline needs networks 'svbrdf' and 'patterns' (or 'flash')" in capsys.readouterr().err
+
+
+def test_held_out_procedural_materials_are_named_by_their_index():
+    from mitsvbrdf.cli import load_materials
+    from mitsvbrdf.data.procedural import generate
+    from mitsvbrdf.training.config import TEST_SEED_BASE
+
+    mats = load_materials("procedural", 16, 3)
+    assert [m.name for m in mats] == [f"procedural:{TEST_SEED_BASE}:{i}" for i in range(3)]
+    assert torch.equal(mats[2].diffuse, generate(3, size=16, seed=TEST_SEED_BASE)[2].diffuse)

@@ -56,6 +56,23 @@ def test_outputs_tables_figures_and_index(rig, tmp_path, relight):
     assert "figures/material_001.png" in (tmp_path / "index.html").read_text()
 
 
+def test_figure_files_have_portable_names(rig, tmp_path, relight):
+    mat = textured_material(16, seed=3)
+    mat.name = "procedural:1000000:7"
+    evaluate({"oracle": _oracle}, [mat], rig, tmp_path, relight=relight, progress=False)
+    assert [p.name for p in (tmp_path / "figures").iterdir()] == ["procedural-1000000-7.png"]
+    assert "figures/procedural-1000000-7.png" in (tmp_path / "index.html").read_text()
+
+
+def test_materials_with_one_name_get_one_row_and_figure_each(rig, tmp_path, relight):
+    mats = [textured_material(16, seed=s) for s in range(2)]
+    for m in mats:
+        m.name = "same"
+    rows = evaluate({"oracle": _oracle}, mats, rig, tmp_path, relight=relight, progress=False)
+    assert len({r["material"] for r in rows}) == 2
+    assert len(list((tmp_path / "figures").glob("*.png"))) == 2
+
+
 def test_fixed_pattern_baseline_sees_its_patterns(rig, tmp_path, relight):
     seen = {}
 

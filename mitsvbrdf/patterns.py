@@ -130,6 +130,12 @@ def pattern_family(name: str, h: int = 32, w: int = 32, **kwargs) -> Tensor:
     return builders[name](h, w, **kwargs)
 
 
+def prepend_pattern(first: Tensor, rest: Tensor) -> Tensor:
+    """One pattern (3, h, w) shown before each material's patterns (B, P, 3, h, w) -> (B, P + 1, 3, h, w):
+    L_0 before the adaptive patterns."""
+    return torch.cat([first.to(rest)[None, None].expand(rest.shape[0], 1, *first.shape), rest], 1)
+
+
 def load_patterns(name_or_path: str | Path, h: int = 32, w: int = 32) -> Tensor:
     """A family name, or a file: ``.npy``/``.pt`` holding (P, 3, h, w) (or (3, h, w)) drive values,
     or an image (PNG/EXR) of P tiles of h x w cells side by side (drive values as stored)."""

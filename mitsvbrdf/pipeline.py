@@ -25,6 +25,7 @@ import torch
 from torch import Tensor
 
 from .importance import importance
+from .patterns import prepend_pattern
 from .render import render
 from .rig import Rig
 from .separation import separate_specular
@@ -85,8 +86,7 @@ class AcquisitionPipeline(torch.nn.Module):
 
     def all_patterns(self, adaptive: Tensor) -> Tensor:
         """L_0 prepended to adaptive patterns (B, 4, 3, h, w) -> (B, 5, 3, h, w)."""
-        l0 = self.l0.to(adaptive)[None, None].expand(adaptive.shape[0], 1, *self.l0.shape)
-        return torch.cat([l0, adaptive], 1)
+        return prepend_pattern(self.l0, adaptive)
 
     @torch.no_grad()
     def acquire(self, capture, batch: int = 1) -> Acquisition | list[Acquisition]:

@@ -32,7 +32,7 @@ from ..importance import importance
 from ..losses import importance_consistency_loss, inverse_importance_loss, map_l1
 from ..nets import (Initializer, LearnedPattern, LightingPredictor, PatternSet, PointPredictor, SVBRDFPredictor,
                     network_from_record)
-from ..patterns import load_patterns
+from ..patterns import load_patterns, prepend_pattern
 from ..relight import FlashLight
 from ..render import render
 from ..rig import Rig
@@ -198,8 +198,7 @@ class AdaptiveStage(TrainingStage):
         lpdf = self.lpdf(batch, i0)
         out = self.nets["lighting"](i0, lpdf)
         imgs = self.capture(batch, out.patterns, seed + 1, g)
-        b = batch.batch_size
-        patterns = torch.cat([l0.detach()[None, None].expand(b, 1, *l0.shape), out.patterns], 1)
+        patterns = prepend_pattern(l0.detach(), out.patterns)
         images = torch.cat([i0[:, None], imgs], 1)
         losses = {"consistency": importance_consistency_loss(l0.detach(), out.patterns, lpdf),
                   "inverse": inverse_importance_loss(out.normal, out.roughness, batch.normal, batch.roughness)}

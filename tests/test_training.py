@@ -38,6 +38,18 @@ def test_every_shipped_config_validates():
         load_config(path)
 
 
+@pytest.mark.parametrize("suffix", ["-small", ""])
+def test_every_baseline_and_adaptive_variant_gets_the_same_g_sc_budget(suffix):
+    cfg = lambda name: load_config(ROOT / "train" / f"{name}{suffix}.toml")  # noqa: E731
+    budgets = {chain: cfg(f"stage2{chain}").train.steps + cfg(f"finetune{chain}").train.steps
+               for chain in ("", "-nospec", "-diffinit")}
+    budgets |= {b: cfg(f"fixed-{b}").train.steps
+                for b in ("monograd", "colorgrad", "picked", "pca", "optimized", "lpl", "flash")}
+    assert len(set(budgets.values())) == 1, budgets
+    batches = {cfg(n).train.batch for n in ("stage2", "finetune", "fixed-monograd", "fixed-flash")}
+    assert len(batches) == 1
+
+
 def test_unknown_key_is_named_with_a_suggestion():
     with pytest.raises(ConfigError, match=r"train\.stpes: unknown key \(did you mean 'steps'\?\)"):
         load_config(table={"stage": "init", "train": {"stpes": 3}})

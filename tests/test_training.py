@@ -124,6 +124,16 @@ def test_learned_pattern_group_gets_gradients_through_the_mitsuba_renderer(rig):
     assert g is not None and torch.isfinite(g).all() and float(g.abs().sum()) > 0
 
 
+def test_learned_patterns_get_their_own_learning_rate(rig):
+    S = STAGES["fixed"]
+    stage = S(S.Model(patterns="random", learn_patterns=True, pattern_lr=0.05, svbrdf_width=4), S.Loss(),
+              RenderSettings(), rig)
+    groups = stage.param_groups(1e-3)
+    assert [g["lr"] for g in groups] == [1e-3, 0.05]
+    assert groups[1]["params"] == [stage.nets["patterns"].logits]
+    assert sum(p.numel() for g in groups for p in g["params"]) == sum(p.numel() for p in stage.parameters())
+
+
 def test_fixed_pattern_group_stays_a_buffer_without_gradients(rig):
     S = STAGES["fixed"]
     stage = S(S.Model(patterns="monograd", svbrdf_width=4), S.Loss(), RenderSettings("mitsuba", 1), rig)

@@ -85,6 +85,11 @@ class TrainingStage(nn.Module):
             net.requires_grad_(not frozen)
             self.nets[n] = net
 
+    def param_groups(self, lr: float) -> list[dict]:
+        """The optimiser's parameter groups at base learning rate ``lr``: every trainable parameter
+        at ``lr`` (stages with parameters that want another rate override this)."""
+        return [{"params": [p for p in self.parameters() if p.requires_grad], "lr": lr}]
+
     # -- rendering --------------------------------------------------------------------------
     def capture(self, batch: SVBRDF, patterns: Tensor, seed: int, generator: torch.Generator) -> Tensor:
         cfg = self.render_cfg
@@ -266,6 +271,7 @@ class FixedModel:
     patterns: str = "monograd"   # a family name or a .npy/.pt/PNG file; with learn_patterns, the start
     learn_patterns: bool = False  # optimise the group with G_sc (LPL+ from 5 patterns, LPL from 1)
     light: str = "lcd"           # "lcd" | "flash" (one image under a point light at the camera)
+    pattern_lr: float = 0.0      # learning rate of learned patterns (0: train.lr); they see weak, noisy gradients
     flash_intensity: float = 0.04  # W/sr, light = "flash"
     svbrdf_width: int = 16
     svbrdf_blocks: list[int] = field(default_factory=lambda: [1, 1, 1])
@@ -282,6 +288,8 @@ class FixedStage(TrainingStage):
 
     def __init__(self, model: FixedModel, loss: FixedLoss, render_settings: RenderSettings, rig: Rig):
         super().__init__(model, loss, render_settings, rig)
+        if model.pattern_lr < 0:
+            raise MitsvbrdfError(f"model.pattern_lr must be >= 0, got {model.pattern_lr}")
         if model.light not in ("lcd", "flash"):
             raise MitsvbrdfError(f"model.light must be 'lcd' or 'flash', got {model.light!r}")
         if model.light == "flash":
@@ -298,6 +306,13 @@ class FixedStage(TrainingStage):
             self.nets["patterns"].set(pats)
         self.nets["svbrdf"] = SVBRDFPredictor(count, model.svbrdf_width, tuple(model.svbrdf_blocks),
                                               use_spec=model.use_spec)
+
+    def param_groups(self, lr: float) -> list[dict]:
+        if not self.model_cfg.learn_patterns:
+            return super().param_groups(lr)
+        pats = list(self.nets["patterns"].parameters())
+        return [{"params": list(self.nets["svbrdf"].parameters()), "lr": lr},
+                {"params": pats, "lr": self.model_cfg.pattern_lr or lr}]
 
     def forward(self, batch: SVBRDF, seed: int) -> dict[str, Tensor]:
         g = _generator(seed, batch.device)

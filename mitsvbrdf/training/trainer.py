@@ -90,10 +90,10 @@ class Trainer:
         if cls.PRETRAINED:
             self._load_pretrained()
         self.stage.to(self.device)
-        params = [p for p in self.stage.parameters() if p.requires_grad]
-        if not params:
+        groups = [g for g in self.stage.param_groups(cfg.train.lr) if g["params"]]
+        if not groups:
             raise TrainingError(f"stage {cfg.stage!r} has nothing to train")
-        self.opt = torch.optim.Adam(params, lr=cfg.train.lr, weight_decay=cfg.train.weight_decay)
+        self.opt = torch.optim.Adam(groups, lr=cfg.train.lr, weight_decay=cfg.train.weight_decay)
         self.sched = torch.optim.lr_scheduler.CosineAnnealingLR(self.opt, cfg.train.steps, eta_min=cfg.train.lr_min)
         self.model = self.stage
         if self.world > 1:

@@ -24,6 +24,7 @@ from __future__ import annotations
 
 import argparse
 import csv
+import os
 import subprocess
 import sys
 import time
@@ -97,12 +98,15 @@ def train_all(runs: dict[str, Run], python: str, jobs: int = 1) -> None:
             if (r.out / "checkpoint.pt").exists():
                 cmd.append("--resume")
             print(f"[table3] start {k}: {' '.join(cmd[1:])}", flush=True)
-            log = None
+            log, env = None, None
             if jobs > 1:
                 r.out.mkdir(parents=True, exist_ok=True)
                 log = open(r.out / "train.log", "a")
-            active[k] = (subprocess.Popen(cmd, cwd=ROOT, stdout=log, stderr=subprocess.STDOUT if log else None),
-                         time.perf_counter())
+                # OpenMP threads spin while they wait: more threads than cores across the jobs
+                # slowed two CPU runs side by side ten-fold, so the jobs share the cores
+                env = {**os.environ, "OMP_NUM_THREADS": str(max(1, (os.cpu_count() or 1) // jobs))}
+            active[k] = (subprocess.Popen(cmd, cwd=ROOT, stdout=log, stderr=subprocess.STDOUT if log else None,
+                                          env=env), time.perf_counter())
             todo.remove(k)
         if not active:
             raise RuntimeError(f"runs {todo} wait for runs that are neither done nor planned")

@@ -38,6 +38,7 @@ SAMPLES = ROOT.parent / "shared" / "data" / "svbrdf_samples"
 RUNS = ["init", "stage1", "stage2-nospec", "finetune-nospec",
         "fixed-monograd", "fixed-colorgrad", "fixed-picked", "fixed-pca", "fixed-optimized", "fixed-lpl",
         "fixed-flash", "stage1-diffinit", "stage2-diffinit", "finetune-diffinit", "stage2", "finetune"]
+FIGURES = 4  # per material set: each figure (ten methods) is about 0.8 MB
 BASELINES = ["monograd", "colorgrad", "picked", "pca", "optimized", "lpl", "flash"]
 #: per scale: config suffix, evaluation resolution, capture spp, procedural materials
 SCALES = {"small": dict(suffix="-small", size=32, spp=16, n=16),
@@ -131,7 +132,8 @@ def evaluate(runs: dict[str, Run], data: str, out: Path, size: int, spp: int, n:
            "--adaptive", f"adaptive+spec={nets('finetune')}", "--uniform-lpdf", f"diff-init={nets('finetune-diffinit')}"]
     for b in BASELINES:
         cmd += ["--baseline", f"{b}={nets('fixed-' + b)}"]
-    cmd += ["--data", data, "--n", str(n), "--size", str(size), "--spp", str(spp), "--out", str(out)]
+    cmd += ["--data", data, "--n", str(n), "--size", str(size), "--spp", str(spp), "--out", str(out),
+            "--figures", str(FIGURES)]
     print(f"[table3] {' '.join(cmd[1:])}", flush=True)
     subprocess.run(cmd, cwd=ROOT, check=True)
     with open(out / "metrics.csv") as f:

@@ -214,7 +214,9 @@ def cmd_evaluate(args: argparse.Namespace) -> int:
             raise MitsvbrdfError(f"two methods are named {name!r}")
         methods[name] = baseline_method(path, rig, spp=args.spp, seed=args.seed)
     materials = load_materials(args.data, args.size, args.n)
-    evaluate(methods, materials, rig, args.out, progress=not args.quiet)
+    if args.figures is not None and args.figures < 0:
+        raise MitsvbrdfError(f"--figures must be >= 0, got {args.figures}")
+    evaluate(methods, materials, rig, args.out, max_figures=args.figures, progress=not args.quiet)
     print((Path(args.out) / "summary.md").read_text())
     return 0
 
@@ -334,6 +336,8 @@ def build_parser() -> argparse.ArgumentParser:
     e.add_argument("--spp", type=int, default=64)
     e.add_argument("--seed", type=int, default=0)
     e.add_argument("--scene", default=None)
+    e.add_argument("--figures", type=int, default=None, metavar="N",
+                   help="figures for the first N materials only (default: every material)")
     e.add_argument("--out", required=True, help="output folder")
     e.add_argument("--quiet", action="store_true")
     e.set_defaults(func=cmd_evaluate)

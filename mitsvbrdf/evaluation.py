@@ -99,8 +99,11 @@ def score(pred: SVBRDF, gt: SVBRDF, rig: Rig, relight: Relighting) -> tuple[dict
 
 
 def evaluate(methods: dict[str, Method], materials: Iterable[SVBRDF], rig: Rig, out_dir: str | Path, *,
-             relight: Relighting | None = None, figures: bool = True, progress: bool = True) -> list[dict]:
+             relight: Relighting | None = None, figures: bool = True, max_figures: int | None = None,
+             progress: bool = True) -> list[dict]:
     """Run every method on every material; write the tables, figures and index (module docstring).
+    ``max_figures`` limits the figures to the first materials (they are large: one row of images
+    per method).
 
     Returns the per-material rows. Raises ValueError for an empty material set.
     """
@@ -135,7 +138,7 @@ def evaluate(methods: dict[str, Method], materials: Iterable[SVBRDF], rig: Rig, 
             rows.append({"method": mname, "material": name, **row})
             shown[mname] = (cap, tp)
             bar.update(1)
-        if figures:
+        if figures and (max_figures is None or len(figs) < max_figures):
             path = out / "figures" / f"{_file_stem(name)}.png"
             material_figure(gt, shown, tg, path)
             figs.append((name, f"figures/{path.name}"))

@@ -203,6 +203,15 @@ def test_a_camera_with_a_response_needs_it(rig):
         BracketCapture(camera(rig), camera(rig), EXPOSURES, response=None)
 
 
+def test_a_raw_only_capture_needs_no_response_but_has_no_radiance(rig):
+    sim = camera(rig)
+    cap = BracketCapture(sim, sim, EXPOSURES, response=None, raw_only=True)
+    frames = cap.bracket(np.ones((3, *rig.lcd_cells), np.float32))
+    assert len(frames) == len(EXPOSURES) and not sim.linear
+    with pytest.raises(ValueError, match="raw brackets only"):
+        cap.radiance(frames)
+
+
 # ---- sessions through a serial controller ------------------------------------------------------------
 
 FAST = (0.002, 0.008)  # the fake controller really waits for each exposure

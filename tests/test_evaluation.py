@@ -64,6 +64,13 @@ def test_figure_files_have_portable_names(rig, tmp_path, relight):
     assert "figures/procedural-1000000-7.png" in (tmp_path / "index.html").read_text()
 
 
+def test_figures_can_be_limited_to_the_first_materials(rig, tmp_path, relight):
+    mats = [textured_material(16, seed=s) for s in range(3)]
+    rows = evaluate({"oracle": _oracle}, mats, rig, tmp_path, relight=relight, max_figures=1, progress=False)
+    assert len(rows) == 3
+    assert [p.name for p in (tmp_path / "figures").iterdir()] == ["material_000.png"]
+
+
 def test_materials_with_one_name_get_one_row_and_figure_each(rig, tmp_path, relight):
     mats = [textured_material(16, seed=s) for s in range(2)]
     for m in mats:

@@ -69,7 +69,7 @@ def _devices(args, rig, material):
     return display, cam, response, matrix, ctl
 
 
-def _bracket(args, rig, display, cam, response, matrix):
+def _bracket(args, rig, display, cam, response, matrix, raw_only: bool = False):
     from .camera import CameraModel
     from .session import BracketCapture
 
@@ -78,7 +78,7 @@ def _bracket(args, rig, display, cam, response, matrix):
         model = CameraModel.from_rig(rig)
         rectify = lambda frame: model.rectify(frame, rig.sample_size, args.resolution)  # noqa: E731
     return BracketCapture(display, cam, _floats(args.exposures, "--exposures"), response=response,
-                          rectify=rectify, color_matrix=matrix)
+                          rectify=rectify, color_matrix=matrix, raw_only=raw_only)
 
 
 def cmd_capture(args: argparse.Namespace) -> int:
@@ -129,10 +129,10 @@ def cmd_calibrate(args: argparse.Namespace) -> int:
         place = lambda t: display.place(targets[t])  # noqa: E731
     else:
         place = lambda t: input(f"put the {t} target on the sample, then press Enter ")  # noqa: E731
-    if args.step == "response":  # calibrating the response: take the frames as they are
-        cam.linear, response = True, None
     try:
-        bench = cal.Bench(_bracket(args, rig, display, cam, response, matrix), place)
+        # calibrating the response: the frames as they are
+        bench = cal.Bench(_bracket(args, rig, display, cam, response, matrix, raw_only=args.step == "response"),
+                          place)
         if args.step == "response":
             fit = cal.calibrate_camera_response(bench, rig.lcd_cells)
             write_camera_calibration(scene, args.out, response=fit)

@@ -82,6 +82,8 @@ class BracketCapture:
             camera's frames are not rectified (e.g. ``CameraModel.rectify`` with the sample size
             and resolution bound).
         color_matrix: (3, 3) camera RGB -> the renderers' linear RGB, applied after merging.
+        raw_only: take raw brackets only (calibrating the response itself): no response is
+            needed, and :meth:`radiance` refuses.
     """
 
     display: Display
@@ -90,11 +92,14 @@ class BracketCapture:
     response: Response | None = None
     rectify: Callable[[np.ndarray], np.ndarray] | None = None
     color_matrix: np.ndarray | None = None
+    raw_only: bool = False
 
     def __post_init__(self):
         self.exposures = tuple(float(t) for t in self.exposures)
         if not self.exposures or min(self.exposures) <= 0:
             raise ValueError(f"exposures must be positive seconds, got {self.exposures}")
+        if self.raw_only:
+            return
         if not self.camera.linear and self.response is None:
             raise ValueError("this camera's frames are not linear: give its response (mitsvbrdf calibrate response)")
         if not self.camera.rectified and self.rectify is None:
@@ -114,6 +119,8 @@ class BracketCapture:
 
     def radiance(self, frames: list[np.ndarray]) -> tuple[np.ndarray, dict[str, int]]:
         """(3, H, W) float32 linear radiance on the texel grid from the bracket's raw frames."""
+        if self.raw_only:
+            raise ValueError("this capture takes raw brackets only (raw_only=True): it has no radiance")
         rad, counts = merge_frames(np.stack(frames), np.array(self.exposures),
                                    None if self.camera.linear else self.response)
         if self.rectify is not None and not self.camera.rectified:

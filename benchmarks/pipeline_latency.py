@@ -58,8 +58,36 @@ def main() -> None:
             f"({sum(p.numel() for p in pipe.parameters()):,} parameters), CPU with {torch.get_num_threads()} "
             "threads; median of 5 runs after a warm-up.\n\n| step | seconds |\n|---|---:|\n" +
             "\n".join(f"| {r['step']} | {r['seconds']} |" for r in rows) + "\n")
+    stride_rows = lpdf_stride_tradeoff(pipe, i0, rig)
+    text += ("\n## L_pdf texel stride: cost and error\n\nL_pdf of the initializer's estimate of the same "
+             "material, computed on every s-th texel; error against s = 1 (relative RMSE of the [0, 1] L_pdf), "
+             "and the RMS change of the 4 predicted patterns (drive values). The pipeline's default is "
+             f"{pipe.lpdf_stride}.\n\n| stride | L_pdf seconds | L_pdf rel. RMSE | pattern RMS change |\n"
+             "|---:|---:|---:|---:|\n" +
+             "\n".join(f"| {r['stride']} | {r['seconds']} | {r['lpdf_rel_rmse']} | {r['pattern_rms_change']} |"
+                       for r in stride_rows) + "\n")
     print(text)
     write_report(args.out, "pipeline_latency_cpu", "Acquisition latency on CPU", "pipeline_latency.py", text, rows)
+
+
+def lpdf_stride_tradeoff(pipe, i0: torch.Tensor, rig, strides=(1, 2, 4, 8, 16)) -> list[dict]:
+    """Seconds and error of L_pdf per texel stride, and the change of the patterns G_l predicts from it."""
+    from mitsvbrdf.importance import importance
+    from mitsvbrdf.pipeline import maps_to_svbrdf
+
+    with torch.no_grad():
+        est = maps_to_svbrdf(pipe.initializer(i0))
+        ref = importance(est.normal, est.roughness, rig, texel_stride=1)
+        ref_pats = pipe.lighting(i0, ref).patterns
+        rows = []
+        for s in strides:
+            lp = importance(est.normal, est.roughness, rig, texel_stride=s)
+            secs = median_seconds(lambda: importance(est.normal, est.roughness, rig, texel_stride=s), runs=3)
+            pats = pipe.lighting(i0, lp).patterns
+            rows.append({"stride": s, "seconds": round(secs, 3),
+                         "lpdf_rel_rmse": round(float((lp - ref).square().mean().sqrt() / ref.square().mean().sqrt()), 4),
+                         "pattern_rms_change": round(float((pats - ref_pats).square().mean().sqrt()), 4)})
+    return rows
 
 
 if __name__ == "__main__":

@@ -81,7 +81,7 @@ def lpdf_stride_tradeoff(pipe, i0: torch.Tensor, rig, strides=(1, 2, 4, 8, 16)) 
         ref_pats = pipe.lighting(i0, ref).patterns
         rows = []
         for s in strides:
-            lp = importance(est.normal, est.roughness, rig, texel_stride=s)
+            lp = ref if s == 1 else importance(est.normal, est.roughness, rig, texel_stride=s)
             secs = median_seconds(lambda: importance(est.normal, est.roughness, rig, texel_stride=s), runs=3)
             pats = pipe.lighting(i0, lp).patterns
             rows.append({"stride": s, "seconds": round(secs, 3),

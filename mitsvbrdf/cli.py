@@ -200,6 +200,8 @@ def cmd_evaluate(args: argparse.Namespace) -> int:
     from .evaluation import adaptive_method, baseline_method, evaluate
     from .rig import Rig
 
+    if args.figures is not None and args.figures < 0:  # before the networks and materials load
+        raise MitsvbrdfError(f"--figures must be >= 0, got {args.figures}")
     rig = Rig.from_scene(args.scene)
     runs = [("adaptive", args.model, "initializer")]
     runs += [(*_named(s, "--adaptive"), "initializer") for s in args.adaptive or []]
@@ -214,8 +216,6 @@ def cmd_evaluate(args: argparse.Namespace) -> int:
             raise MitsvbrdfError(f"two methods are named {name!r}")
         methods[name] = baseline_method(path, rig, spp=args.spp, seed=args.seed)
     materials = load_materials(args.data, args.size, args.n)
-    if args.figures is not None and args.figures < 0:
-        raise MitsvbrdfError(f"--figures must be >= 0, got {args.figures}")
     evaluate(methods, materials, rig, args.out, max_figures=args.figures, progress=not args.quiet)
     print((Path(args.out) / "summary.md").read_text())
     return 0

@@ -302,7 +302,7 @@ def baseline_method(path: str | Path, rig: Rig, *, spp: int = 64, seed: int = 0)
     (fixed or learned) or its flash, and its G_sc. Raises NetworkFileError for other files."""
     from .nets import NetworkFileError, network_from_record
     from .nets.io import read_network_file
-    from .separation import separate_specular
+    from .separation import reconstruct_maps
 
     recs = read_network_file(path, "baseline networks")
     if not isinstance(recs, dict) or "svbrdf" not in recs or not ({"patterns", "flash"} & set(recs)):
@@ -311,14 +311,11 @@ def baseline_method(path: str | Path, rig: Rig, *, spp: int = 64, seed: int = 0)
                                f"the file has {have} (use the export of a 'fixed' stage)")
     net = network_from_record(recs["svbrdf"], f"{path}: svbrdf").eval()
     if "flash" in recs:
-        return flash_method(network_from_record(recs["flash"], f"{path}: flash"), lambda imgs: net(imgs), rig)
+        return flash_method(network_from_record(recs["flash"], f"{path}: flash"), net, rig)
     pats = network_from_record(recs["patterns"], f"{path}: patterns")().detach()
     if tuple(pats.shape[1:]) != (3, *rig.lcd_cells):
         raise NetworkFileError(f"{path}: patterns {tuple(pats.shape[1:])} do not fit this rig's LCD "
                                f"{(3, *rig.lcd_cells)}")
-
-    def reconstruct(images: Tensor, patterns: Tensor) -> Tensor:
-        return net(images, separate_specular(images, patterns, rig) if net.use_spec else None)
-
-    return fixed_pattern_method(pats, reconstruct, rig, spp=spp, seed=seed)
+    return fixed_pattern_method(pats, lambda images, patterns: reconstruct_maps(net, images, patterns, rig), rig,
+                                spp=spp, seed=seed)
 

@@ -28,7 +28,7 @@ from .importance import importance
 from .patterns import prepend_pattern
 from .render import render
 from .rig import Rig
-from .separation import separate_specular
+from .separation import reconstruct_maps
 from .svbrdf import SVBRDF
 
 
@@ -79,10 +79,7 @@ class AcquisitionPipeline(torch.nn.Module):
     @torch.no_grad()
     def reconstruct(self, images: Tensor, patterns: Tensor) -> SVBRDF:
         """Images (B, 5, 3, H, W) under patterns (B, 5, 3, h, w) -> the reconstructed SVBRDF."""
-        # a G_sc without the I^spec encoder (Table 3's "Adaptive") takes the images alone
-        use_spec = getattr(self.reconstructor, "use_spec", True)
-        spec = separate_specular(images, patterns, self.rig) if use_spec else None
-        return maps_to_svbrdf(self.reconstructor(images, spec))
+        return maps_to_svbrdf(reconstruct_maps(self.reconstructor, images, patterns, self.rig))
 
     def all_patterns(self, adaptive: Tensor) -> Tensor:
         """L_0 prepended to adaptive patterns (B, 4, 3, h, w) -> (B, 5, 3, h, w)."""

@@ -101,3 +101,9 @@ def test_held_out_procedural_materials_are_named_by_their_index():
     mats = load_materials("procedural", 16, 3)
     assert [m.name for m in mats] == [f"procedural:{TEST_SEED_BASE}:{i}" for i in range(3)]
     assert torch.equal(mats[2].diffuse, generate(3, size=16, seed=TEST_SEED_BASE)[2].diffuse)
+
+
+def test_evaluate_with_a_negative_figure_count_is_a_clear_error(tmp_path, networks, capsys):
+    assert main(["evaluate", "--model", str(networks), "--figures", "-1", "--out", str(tmp_path / "o"),
+                 "--quiet"]) == 2
+    assert "--figures must be >= 0" in capsys.readouterr().err

@@ -36,7 +36,7 @@ from ..patterns import load_patterns, prepend_pattern
 from ..relight import FlashLight
 from ..render import render
 from ..rig import Rig
-from ..separation import diffuse_irradiance, separate_specular
+from ..separation import diffuse_irradiance, reconstruct_maps
 from ..svbrdf import SVBRDF
 
 
@@ -240,13 +240,10 @@ class Stage2(AdaptiveStage):
         self.nets["svbrdf"] = SVBRDFPredictor(5, model.svbrdf_width, tuple(model.svbrdf_blocks),
                                               use_spec=model.use_spec)
 
-    def reconstruct(self, images: Tensor, patterns: Tensor) -> Tensor:
-        net = self.nets["svbrdf"]
-        return net(images, separate_specular(images, patterns, self.rig) if net.use_spec else None)
-
     def forward(self, batch: SVBRDF, seed: int) -> dict[str, Tensor]:
         patterns, images, losses = self.adaptive_captures(batch, seed)
-        losses["reconstruction"] = map_l1(self.reconstruct(images, patterns), batch.encoded())
+        pred = reconstruct_maps(self.nets["svbrdf"], images, patterns, self.rig)
+        losses["reconstruction"] = map_l1(pred, batch.encoded())
         return self.total(losses)
 
 
@@ -259,7 +256,7 @@ class Finetune(Stage2):
     def forward(self, batch: SVBRDF, seed: int) -> dict[str, Tensor]:
         with torch.no_grad():
             patterns, images, _ = self.adaptive_captures(batch, seed)
-        rec = map_l1(self.reconstruct(images, patterns), batch.encoded())
+        rec = map_l1(reconstruct_maps(self.nets["svbrdf"], images, patterns, self.rig), batch.encoded())
         return {"loss": self.loss_cfg.reconstruction * rec, "reconstruction": rec}
 
 
@@ -319,15 +316,14 @@ class FixedStage(TrainingStage):
         if self.model_cfg.light == "flash":
             with torch.no_grad():
                 images = self.sensor(self.nets["flash"](batch, self.rig), g)
-            pats, spec = None, None
+            pred = self.nets["svbrdf"](images)
         else:
             pats = self.nets["patterns"]()
             # the renderer's gradients reach the patterns only when they are learned
             with torch.set_grad_enabled(self.model_cfg.learn_patterns):
                 images = self.capture(batch, pats, seed, g)
-            with torch.no_grad():
-                spec = separate_specular(images, pats, self.rig) if self.model_cfg.use_spec else None
-        rec = map_l1(self.nets["svbrdf"](images, spec), batch.encoded())
+            pred = reconstruct_maps(self.nets["svbrdf"], images, pats, self.rig)
+        rec = map_l1(pred, batch.encoded())
         return {"loss": self.loss_cfg.reconstruction * rec, "reconstruction": rec}
 
 

@@ -6,24 +6,58 @@ sample with multiple importance sampling (power heuristic); both directions are 
 P patterns the ``lcd`` emitter holds, so P images cost one set of rays.
 
 Parameters:
-    hide_emitters   (bool, default true) camera rays that hit the LCD return black.
+    hide_emitters    (bool, default true) camera rays that hit the LCD return black.
+    sampler          (string, default "stratified") the random numbers of :meth:`render_texels`:
+                     "independent" (one PCG32 stream per sample) or "stratified" (the spp samples
+                     of a texel form an Owen-scrambled (0, 2)-sequence, every dimension pair
+                     shuffled against the others). ``sample`` (``mi.render``) uses the scene's
+                     own sampler.
+    control_variate  (string, default "ltc") what is known in closed form
+                     (:mod:`mitsvbrdf.render.control_variate` computes it; the pointwise part is
+                     :mod:`mitsvbrdf_plugins.lcd_integrals`): "none" (plain Monte Carlo),
+                     "diffuse" (the diffuse term under block-averaged patterns) or "ltc" (the
+                     diffuse term and the fitted LTC specular lobe); Monte Carlo estimates only
+                     the residual, so every choice is unbiased.
+    cv_blocks        (integer, default 8) the diffuse control variate sees the patterns averaged
+                     over cv_blocks x cv_blocks blocks of cells (it must divide the LCD's cell
+                     counts). More blocks: a closer control variate, more closed-form work per
+                     texel (and H W K^2 3 floats of cached geometry).
+    ltc_min_roughness (float, default 0.1) below this roughness the specular lobe is left to
+                     Monte Carlo alone: a near-mirror LTC lobe that misses the true one by a
+                     fraction of its width would make the residual spikier, not smoother.
+
+The emission decay, gamma and colour matrix of the scene's display model all apply: the control
+variate uses each block's mean radiance after the display model and the decay at the block's
+centre; the residual carries the exact per-cell, per-direction emission.
 
 Two entry points:
     * ``sample``: the standard SamplingIntegrator interface (``mi.render`` through the scene's
-      perspective sensor, as a real photo would see the sample); renders pattern 0.
+      perspective sensor, as a real photo would see the sample); renders pattern 0 by plain Monte
+      Carlo with the scene's sampler (the control variate's coefficients are per texel).
     * :meth:`render_texels`: the texel-grid image of mitsvbrdf (pixel (i, j) = texel (i, j) of the
       sample, seen from the camera's centre of projection), (P, 3, H, W), used by
-      ``mitsvbrdf.render(..., method="mitsuba")``.
+      ``mitsvbrdf.render(..., method="mitsuba")``; the closed-form part is computed once per
+      texel, the residual per sample.
 
 For gradients w.r.t. the maps, BSDF-sampled directions are detached and the BSDF re-evaluated
 (detached sampling), and MIS weights are detached; patterns enter linearly through the emitter's
-``data`` tensor.
+``data`` tensor. The closed-form part is differentiable w.r.t. patterns and maps.
+
+Rejected alternative: sampling the LCD by the patterns' brightness. With the control variate the
+residual is no longer proportional to a cell's radiance (a black cell next to a bright block
+still carries residual), and a pattern-dependent pdf would differ per pattern while all P
+patterns share one sample set.
 """
 
 from __future__ import annotations
 
 import drjit as dr
 import mitsuba as mi
+
+from .lcd_integrals import ViewFrame, ltc_density
+
+SAMPLERS = ("independent", "stratified")
+CONTROL_VARIATES = ("none", "diffuse", "ltc")
 
 
 class _LaneSampler:
@@ -44,17 +78,127 @@ class _LaneSampler:
         return mi.Point2f(self.rng.next_float32(), self.rng.next_float32())
 
 
+def _unit_float(bits):
+    return mi.Float(bits >> 8) * (1.0 / (1 << 24))
+
+
+def _owen(x, seed):
+    """Nested uniform (Owen) scrambling of the bits of x, most significant first, by the
+    Laine-Karras hash (Burley 2020, "Practical hash-based Owen scrambling")."""
+    x = dr.brev(x) + seed
+    for c in (0x6C50B47C, 0xB82F1E52, 0xC7AFE638, 0x8D22F6E6):
+        x ^= x * c
+    return dr.brev(x)
+
+
+def _sobol2(k):
+    """Sobol's second dimension (the Pascal matrix) of index k, as 32 bits."""
+    v, out = 1 << 31, mi.UInt32(0)
+    for i in range(32):
+        out ^= dr.select((k & (1 << i)) != 0, mi.UInt32(v), mi.UInt32(0))
+        v ^= v >> 1
+    return out
+
+
+class _StratifiedSampler:
+    """Sample k of a texel's spp samples is point k of the (0, 2)-sequence (radical inverse and
+    Sobol's second dimension) after Owen scrambling, "shuffled" per dimension pair as in Burley
+    2020: each call scrambles the sample index and both coordinates with fresh seeds, so every
+    2-D projection the integrator uses is stratified, pairs are not correlated with each other, and
+    points fall at random positions inside their strata (a plain XOR shift would put all of a
+    texel's 4 points at one phase of any pattern with period 1/8, and the control variate's block
+    residual has exactly such periods). The seeds come from a PCG32 stream keyed by (key, texel),
+    a pure function of the seed and the texel, as for :class:`_LaneSampler`."""
+
+    def __init__(self, key, texel, k):
+        v0, v1 = mi.sample_tea_32(mi.UInt32(key), mi.UInt32(texel))
+        self.rng = mi.PCG32(dr.width(k))
+        self.rng.seed(mi.UInt64(v0), mi.UInt64(v1))
+        self.k = mi.UInt32(k)
+
+    def next_1d(self, active=True):
+        k = _owen(self.k, self.rng.next_uint32())
+        return _unit_float(_owen(dr.brev(k), self.rng.next_uint32()))
+
+    def next_2d(self, active=True):
+        k = _owen(self.k, self.rng.next_uint32())
+        return mi.Point2f(_unit_float(_owen(dr.brev(k), self.rng.next_uint32())),
+                          _unit_float(_owen(_sobol2(k), self.rng.next_uint32())))
+
+
 def _power_heuristic(a, b):
     a2, b2 = a * a, b * b
     return dr.select(a2 + b2 > 0, a2 / (a2 + b2), 0.0)
 
 
+class _ControlVariate:
+    """g_p of :mod:`mitsvbrdf.render.control_variate` in one direction per lane, from the
+    coefficients that module computed (so the closed-form part and the residual cannot disagree).
+
+    Args: the ``lcd`` emitter; ``block_rad`` the flat (B, P, 3, K^2) block radiance; ``coeffs`` the
+    flat (B, H W, 7 + 3 P) per-texel coefficients; K; the lanes' material ``b`` and ``texel``
+    index; the count P; the shading point's normal ``n`` and view direction (local)."""
+
+    def __init__(self, lcd, block_rad, coeffs, K: int, b, texel, hw: int, count: int, n, wi):
+        self.lcd, self.K, self.count = lcd, K, count
+        self.block_rad, self.b = block_rad, b
+        width = 7 + 3 * count
+        base = (b * hw + texel) * width
+        c = [dr.gather(mi.Float, coeffs, base + j) for j in range(width)]
+        self.m = tuple(c[:4])
+        self.kdd = mi.Color3f(c[4], c[5], c[6])
+        self.spec = [mi.Color3f(c[7 + 3 * p], c[8 + 3 * p], c[9 + 3 * p]) for p in range(count)]
+        self.frame = ViewFrame(n, wi)
+        T = lcd.to_world()
+        self.to_world = mi.Transform4f(T)
+        self.lcd_n = mi.Vector3f(dr.normalize(mi.ScalarVector3f(T @ mi.ScalarNormal3f(0.0, 0.0, 1.0))))
+
+    def _decay(self, p_world, u, v):
+        """e_b(x): the emission decay of the LCD point (u, v) towards the shading point."""
+        if not self.lcd.has_decay:
+            return mi.Float(1.0)
+        y = self.to_world @ mi.Point3f(2.0 * u - 1.0, 2.0 * v - 1.0, 0.0)
+        return self.lcd._factor(mi.Point2f(u, v), dr.dot(dr.normalize(p_world - y), self.lcd_n))
+
+    def pointwise(self, si, wo, uv, hit) -> list:
+        """Per pattern, g_p(wo) (Color3f) for the local light direction wo that meets the LCD at uv."""
+        K = self.K
+        bi = dr.clip(mi.Int32(dr.floor(uv.y * K)), 0, K - 1)
+        bj = dr.clip(mi.Int32(dr.floor(uv.x * K)), 0, K - 1)
+        decay = self._decay(si.p, (mi.Float(bj) + 0.5) / K, (mi.Float(bi) + 0.5) / K)
+        w = self.frame.to_view(wo)
+        g_d = self.kdd * (dr.maximum(w.z, 0.0) / dr.pi * decay)
+        d_s = ltc_density(self.m, w)
+        base = (self.b * self.count) * (3 * K * K) + mi.UInt32(bi * K + bj)
+        out = []
+        for p in range(self.count):
+            idx = base + p * (3 * K * K)
+            lbar = mi.Color3f(*(dr.gather(mi.Float, self.block_rad, idx + c * (K * K), hit) for c in range(3)))
+            out.append(dr.select(hit, lbar * g_d + self.spec[p] * d_s, 0.0))
+        return out
+
+
 class ImportanceIntegrator(mi.SamplingIntegrator):
-    """Direct illumination from the ``lcd`` emitter for all its patterns at once."""
+    """Direct illumination from the ``lcd`` emitter for all its patterns at once (see the module
+    docstring for the parameters)."""
 
     def __init__(self, props: mi.Properties):
         mi.SamplingIntegrator.__init__(self, props)
         self.hide_emitters = bool(props.get("hide_emitters", True))
+        self.sampler = str(props.get("sampler", "stratified"))
+        self.control_variate = str(props.get("control_variate", "ltc"))
+        self.cv_blocks = int(props.get("cv_blocks", 8))
+        self.ltc_min_roughness = float(props.get("ltc_min_roughness", 0.1))
+        if self.sampler not in SAMPLERS:
+            raise ValueError(f"importance integrator: sampler must be one of {', '.join(SAMPLERS)}, "
+                             f"got {self.sampler!r}")
+        if self.control_variate not in CONTROL_VARIATES:
+            raise ValueError(f"importance integrator: control_variate must be one of "
+                             f"{', '.join(CONTROL_VARIATES)}, got {self.control_variate!r}")
+        if self.cv_blocks < 1:
+            raise ValueError(f"importance integrator: cv_blocks must be >= 1, got {self.cv_blocks}")
+        if not self.ltc_min_roughness >= 0.0:
+            raise ValueError(f"importance integrator: ltc_min_roughness must be >= 0, got {self.ltc_min_roughness}")
 
     @staticmethod
     def lcd(scene):
@@ -64,9 +208,10 @@ class ImportanceIntegrator(mi.SamplingIntegrator):
             raise ValueError(f"importance integrator: the scene needs exactly one 'lcd' emitter, found {len(ems)}")
         return ems[0]
 
-    def direct(self, scene, sampler, si, active, first=0, count=None) -> list:
+    def direct(self, scene, sampler, si, active, first=0, count=None, cv=None) -> list:
         """Outgoing radiance towards ``si.wi`` for patterns first .. first + count - 1 of the
-        ``lcd`` emitter (default: all): a list of Color3f, all from the same light samples."""
+        ``lcd`` emitter (default: all): a list of Color3f, all from the same light samples. With a
+        control variate ``cv``, only the residual f L e - g (the caller adds g's integral)."""
         lcd = self.lcd(scene)
         bsdf = si.bsdf()
         ctx = mi.BSDFContext()
@@ -80,9 +225,11 @@ class ImportanceIntegrator(mi.SamplingIntegrator):
         f, bsdf_pdf = bsdf.eval_pdf(ctx, si, wo, em_ok)
         w_em = dr.detach(_power_heuristic(ds.pdf, bsdf_pdf))
         cos_emit = -dr.dot(ds.d, ds.n)
-        scale = f * w_em / dr.maximum(dr.detach(ds.pdf), 1e-30)
+        scale = w_em / dr.maximum(dr.detach(ds.pdf), 1e-30)
+        g = cv.pointwise(si, wo, ds.uv, em_ok) if cv is not None else None
         for p, rad in enumerate(lcd.radiance_all(ds.uv, cos_emit, em_ok, first, P)):
-            out[p] += dr.select(em_ok, scale * rad, 0.0)
+            value = f * rad if g is None else f * rad - g[p]
+            out[p] += dr.select(em_ok, scale * value, 0.0)
 
         # BSDF sample: direction detached, BSDF re-evaluated so gradients reach the maps.
         bs, _ = bsdf.sample(ctx, si, sampler.next_1d(active), sampler.next_2d(active), active)
@@ -93,24 +240,53 @@ class ImportanceIntegrator(mi.SamplingIntegrator):
         f_b = bsdf.eval(ctx, si, dr.detach(bs.wo), hit)
         ds_l = mi.DirectionSample3f(scene, si_l, si)
         em_pdf = lcd.pdf_direction(si, ds_l, hit)
+        # isfinite guard as in Mitsuba's own integrators: a degenerate pdf must not poison a lane.
         w_bs = dr.detach(_power_heuristic(bs.pdf, em_pdf))
-        scale_b = f_b * w_bs / dr.maximum(dr.detach(bs.pdf), 1e-30)
+        w_bs = dr.select(dr.isfinite(w_bs), w_bs, 0.0)
+        scale_b = w_bs / dr.maximum(dr.detach(bs.pdf), 1e-30)
         cos_l = mi.Frame3f.cos_theta(si_l.wi)
+        g = cv.pointwise(si, dr.detach(bs.wo), si_l.uv, hit) if cv is not None else None
         for p, rad in enumerate(lcd.radiance_all(si_l.uv, cos_l, hit, first, P)):
-            out[p] += dr.select(hit, scale_b * rad, 0.0)
+            value = f_b * rad if g is None else f_b * rad - g[p]
+            out[p] += dr.select(hit, scale_b * value, 0.0)
         return out
 
     def sample(self, scene, sampler, ray, medium=None, active=True):
         si = scene.ray_intersect(ray, active)
         valid = active & si.is_valid()
         on_sample = valid & (si.emitter(scene) == None)  # noqa: E711 (Dr.Jit pointer comparison)
+        # The control variate's coefficients are per texel: only render_texels has them.
         values = self.direct(scene, sampler, si, on_sample, count=1)
         return values[0], valid, []
 
     def aov_names(self):
         return []
 
-    def render_texels(self, scene, resolution: tuple[int, int], spp: int, seed, batch: int = 1) -> mi.TensorXf:
+    @staticmethod
+    def _sample_shape(scene):
+        shapes = [s for s in scene.shapes() if s.bsdf() is not None and hasattr(s.bsdf(), "MAPS")]
+        if len(shapes) != 1:
+            raise ValueError("importance integrator: the scene needs exactly one shape with an svbrdf_ggx BSDF")
+        return shapes[0]
+
+    @staticmethod
+    def _texel_interactions(scene, shape, texel, b, H: int, W: int, batch: int):
+        """Surface interactions at the centres of texels ``texel`` of materials ``b``, seen from
+        the camera's centre of projection, with uv addressing material b's rows of the stacked maps."""
+        to_world = mi.traverse(shape)["to_world"]
+        cam = scene.sensors()[0].world_transform() @ mi.ScalarPoint3f(0.0, 0.0, 0.0)
+        row, col = texel // W, texel % W
+        u = (mi.Float(col) + 0.5) / W
+        v = 1.0 - (mi.Float(row) + 0.5) / H  # row 0 at the top (uv.y = 1)
+        x = to_world @ mi.Point3f(2.0 * u - 1.0, 2.0 * v - 1.0, 0.0)
+        ray = mi.Ray3f(mi.Point3f(cam), dr.normalize(x - mi.Point3f(cam)))
+        si = scene.ray_intersect(ray)
+        ok = si.is_valid() & (si.shape == mi.ShapePtr(shape))
+        si.uv = mi.Point2f(si.uv.x, 1.0 - (mi.Float(b * H + row) + 0.5) / (batch * H))
+        return si, ok
+
+    def render_texels(self, scene, resolution: tuple[int, int], spp: int, seed, batch: int = 1,
+                      control=None) -> mi.TensorXf:
         """(batch * P, 3, H, W) radiance on the sample's texel grid, ``spp`` samples per texel.
 
         A batch of materials renders in one pass: the BSDF's maps hold the ``batch`` materials
@@ -118,35 +294,33 @@ class ImportanceIntegrator(mi.SamplingIntegrator):
         along the first axis (batch * P, 3, h, w). Material b's random numbers are keyed by
         ``seed + b`` and the lane's (texel, sample) index, so its image does not depend on the
         rest of the batch. ``seed`` may be an opaque ``mi.UInt32`` (no recompilation).
+
+        ``control``: None (plain Monte Carlo), or ``(block_radiance, coefficients)``, the flat
+        arrays of :class:`mitsvbrdf.render.control_variate.ControlVariate`; then the result is
+        only the residual's estimate, to which the caller adds the control variate's ``known``.
         """
         H, W = resolution
         lcd = self.lcd(scene)
         if lcd.pattern_count % batch:
             raise ValueError(f"importance integrator: {lcd.pattern_count} patterns do not split into {batch} materials")
         P = lcd.pattern_count // batch
-        sample_shape = [s for s in scene.shapes() if s.bsdf() is not None and hasattr(s.bsdf(), "MAPS")]
-        if len(sample_shape) != 1:
-            raise ValueError("importance integrator: the scene needs exactly one shape with an svbrdf_ggx BSDF")
-        to_world = mi.traverse(sample_shape[0])["to_world"]
-        cam = scene.sensors()[0].world_transform() @ mi.ScalarPoint3f(0.0, 0.0, 0.0)
+        shape = self._sample_shape(scene)
 
         per_material = H * W * spp
         idx = dr.arange(mi.UInt32, batch * per_material)
         b = idx // per_material
         k = idx - b * per_material
         texel = k // spp
-        row, col = texel // W, texel % W
-        u = (mi.Float(col) + 0.5) / W
-        v = 1.0 - (mi.Float(row) + 0.5) / H  # row 0 at the top (uv.y = 1)
-        x = to_world @ mi.Point3f(2.0 * u - 1.0, 2.0 * v - 1.0, 0.0)
-        ray = mi.Ray3f(mi.Point3f(cam), dr.normalize(x - mi.Point3f(cam)))
-        si = scene.ray_intersect(ray)
-        ok = si.is_valid() & (si.shape == mi.ShapePtr(sample_shape[0]))
-        # Address material b's rows of the stacked maps.
-        si.uv = mi.Point2f(si.uv.x, 1.0 - (mi.Float(b * H + row) + 0.5) / (batch * H))
-
-        sampler = _LaneSampler(mi.UInt32(seed) + b, k)
-        values = self.direct(scene, sampler, si, ok, first=b * P, count=P)
+        si, ok = self._texel_interactions(scene, shape, texel, b, H, W, batch)
+        if self.sampler == "stratified":
+            sampler = _StratifiedSampler(mi.UInt32(seed) + b, texel, k - texel * spp)
+        else:
+            sampler = _LaneSampler(mi.UInt32(seed) + b, k)
+        cv = None
+        if control is not None:
+            n, _, _, _ = shape.bsdf().maps(si, ok)
+            cv = _ControlVariate(lcd, control[0], control[1], self.cv_blocks, b, texel, H * W, P, n, si.wi)
+        values = self.direct(scene, sampler, si, ok, first=b * P, count=P, cv=cv)
         # One kernel for all 3P channels; reduced one by one they would each re-trace the paths.
         dr.eval(values)
         chans = [dr.block_sum(c, spp) / spp for val in values for c in (val.x, val.y, val.z)]
@@ -160,4 +334,5 @@ class ImportanceIntegrator(mi.SamplingIntegrator):
         return mi.TensorXf(flat, shape=(batch * P, 3, H, W))
 
     def to_string(self):
-        return "ImportanceIntegrator[]"
+        return (f"ImportanceIntegrator[sampler={self.sampler}, control_variate={self.control_variate}, "
+                f"cv_blocks={self.cv_blocks}]")

@@ -97,13 +97,16 @@ class SVBRDFGGX(mi.BSDF):
             return dr.gather(mi.Float, t.array, idx, active)
         return mi.Vector3f(*(dr.gather(mi.Float, t.array, idx + k, active) for k in range(3)))
 
-    def _material(self, si, active):
+    def maps(self, si, active=True):
+        """(unit normal, kd, ks, r) at the texel of ``si.uv``, normal in the local frame."""
         n = dr.normalize(self._lookup(self.normal, si.uv, active))
         kd = mi.Color3f(self._lookup(self.diffuse, si.uv, active))
         ks = mi.Color3f(self._lookup(self.specular, si.uv, active))
-        r = self._lookup(self.roughness, si.uv, active)
-        alpha = dr.maximum(r * r, ALPHA_MIN)
-        return n, kd, ks, alpha
+        return n, kd, ks, self._lookup(self.roughness, si.uv, active)
+
+    def _material(self, si, active):
+        n, kd, ks, r = self.maps(si, active)
+        return n, kd, ks, dr.maximum(r * r, ALPHA_MIN)
 
     # ---- the BRDF -----------------------------------------------------------------------------
 

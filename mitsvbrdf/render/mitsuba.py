@@ -7,6 +7,11 @@ texel-grid renderer: (B, P, 3, H, W), all P patterns from one set of light sampl
 patterns and maps flow back to torch through ``dr.wrap``. CPU tensors use ``llvm_ad_rgb``, CUDA
 tensors ``cuda_ad_rgb``. The seed is passed as an opaque value, so new data and new seeds reuse the
 compiled kernels; only a new resolution, spp or pattern count compiles new ones.
+
+The integrator's options in the scene file decide the estimator (sampler, control variate; see
+plugins/importance_integrator.py). With a control variate, its closed-form part and per-texel
+coefficients are computed here in torch (:mod:`.control_variate`), handed to the integrator,
+which estimates only the residual, and added back: one set of numbers for both halves.
 """
 
 from __future__ import annotations
@@ -18,6 +23,7 @@ from torch import Tensor
 
 from ..errors import PatternError
 from ..rig import Rig
+from .control_variate import control_variate
 
 _SCENES: dict[tuple[str, str], tuple] = {}
 
@@ -77,21 +83,31 @@ def render_mitsuba(svbrdf, patterns: Tensor, rig: Rig, *, spp: int = 64, seed: i
     elif patterns.shape[0] != B:
         raise PatternError(f"per-material patterns have batch {patterns.shape[0]}, the SVBRDF has {B}")
 
+    cv = None
+    if integrator.control_variate != "none":
+        cv = control_variate(svbrdf, patterns, rig, mode=integrator.control_variate,
+                             blocks=integrator.cv_blocks, ltc_min_roughness=integrator.ltc_min_roughness)
+
     @dr.wrap(source="torch", target="drjit")
-    def batch(normal, diffuse, roughness, specular, drive, seed_value):
+    def batch(normal, diffuse, roughness, specular, drive, seed_value, block_rad, coeffs):
         params["sample.bsdf.normal"] = normal
         params["sample.bsdf.diffuse"] = diffuse
         params["sample.bsdf.roughness"] = roughness
         params["sample.bsdf.specular"] = specular
         params["lcd.emitter.data"] = drive
         params.update()
-        return integrator.render_texels(scene, (H, W), spp, seed_value, batch=B)
+        control = None if cv is None else (block_rad.array, coeffs.array)
+        return integrator.render_texels(scene, (H, W), spp, seed_value, batch=B, control=control)
 
     def stacked(t):  # (B, C, H, W) -> (B * H, W, C): the plugin's layout, materials along rows
         return t.permute(0, 2, 3, 1).reshape(B * H, W, t.shape[1]).contiguous()
 
     P = patterns.shape[1]
+    empty = torch.zeros(1, device=device)
     images = batch(stacked(svbrdf.normal), stacked(svbrdf.diffuse), stacked(svbrdf.roughness),
                    stacked(svbrdf.specular), patterns.reshape(B * P, *patterns.shape[2:]).contiguous(),
-                   dr.opaque(mi.UInt32, seed))
-    return images.reshape(B, P, 3, H, W)
+                   dr.opaque(mi.UInt32, seed),
+                   empty if cv is None else cv.block_radiance.contiguous(),
+                   empty if cv is None else cv.texel.contiguous())
+    images = images.reshape(B, P, 3, H, W)
+    return images if cv is None else images + cv.known

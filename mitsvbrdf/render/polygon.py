@@ -36,6 +36,14 @@ def _edge_vector(p: Tensor, q: Tensor) -> Tensor:
     return torch.where(s > 1e-12, theta / s.clamp_min(1e-12), torch.ones_like(s)) * cross
 
 
+def polygon_vector_form_factor(vertices: Tensor) -> Tensor:
+    """Vector form factor (1 / 2 pi) sum_k theta_k (p_k x p_{k+1}) / |p_k x p_{k+1}| of polygons
+    (..., K, 3), unclipped and frame-free: for a polygon wholly above the horizon of a unit
+    normal n, ``|n . result|`` is its form factor; (..., 3)."""
+    b = torch.roll(vertices, shifts=-1, dims=-2)
+    return _edge_vector(vertices, b).sum(-2) / (2.0 * math.pi)
+
+
 def clipped_polygon_vector_form_factor(vertices: Tensor) -> Tensor:
     """Vector form factor (1 / 2 pi) sum_k theta_k (p_k x p_{k+1}) / |p_k x p_{k+1}| of convex
     polygons clipped to z >= 0, signed by the polygon's orientation; (..., 3).

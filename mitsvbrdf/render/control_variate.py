@@ -1,0 +1,176 @@
+"""The closed-form part of the Mitsuba path's estimator: a control variate for Eq. 1 (torch side).
+
+The ``importance`` integrator (plugins/importance_integrator.py) estimates
+
+    I_p(x) = K_p(x) + integral over the LCD of [f(w) L_p(w) e(w) - g_p(w)] dw,
+    K_p(x) = integral over the LCD of g_p(w) dw                                  (known exactly),
+
+by Monte Carlo on the residual only; any g_p keeps the estimate unbiased, and the closer g_p is to
+the integrand, the smaller the noise. This module computes g_p's coefficients per texel and K_p in
+closed form; the plugin evaluates g_p pointwise from the same coefficients, so the two can never
+disagree. Two terms (either may be switched off by the scene file's integrator options):
+
+* diffuse: ``g_d = Lbar_{p,b(w)} e_b(x) kd (1 - ks) (n . w)^+ / pi``, the BRDF's own diffuse term
+  under the pattern averaged over K x K blocks of cells b (``cv_blocks``), with the emission decay
+  e_b(x) at each block's centre. Its integral is ``kd (1 - ks) sum_b Lbar_{p,b} n . Phi'_b(x)``
+  with ``Phi'_b(x) = e_b(x) Phi_b(x)``, Phi_b the block's vector form factor (Lambert's formula;
+  geometry only, computed once per rig, resolution and K). ``n . Phi_b`` is the block's form
+  factor only while the whole LCD lies above the horizon of n; at texels where it does not, the
+  diffuse term is left to Monte Carlo (weight 0).
+* specular ("ltc"): ``g_s = c_p(x) S(x) D_ltc(w)``, the fitted LTC lobe (:mod:`.ltc_fit`, in the
+  view frame of :func:`.ltc.view_frame`) under one radiance per texel and pattern, c_p the block
+  radiance times decay where the lobe's peak direction M z meets the LCD (its centre when it
+  points away), S = ks (A_1 - A_S) + A_S. Its integral is ``c_p S E(M^-1 LCD)``, the clipped form
+  factor of the warped LCD (:mod:`.polygon`). Switched off below ``ltc_min_roughness``: a
+  near-mirror LTC lobe that misses the true one by a fraction of its width makes the residual
+  spikier, not smoother.
+
+Shapes: B materials, P patterns, texels in row-major (H, W) order. Everything is differentiable
+w.r.t. patterns and maps (torch autograd), as the residual is on the plugin's side.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from functools import lru_cache
+
+import torch
+from torch import Tensor
+
+from ..rig import Rig
+from .ltc import view_frame
+from .ltc_fit import default_table
+from .polygon import clipped_polygon_vector_form_factor, polygon_vector_form_factor
+
+MODES = ("none", "diffuse", "ltc")
+
+
+@dataclass
+class ControlVariate:
+    """Per-texel coefficients of g_p for the plugin and its exact integral.
+
+    Attributes:
+        block_radiance: (B, P, 3, K * K) Lbar_{p,b}, block b = row * K + column.
+        texel: (B, H * W, 4 + 3 + 3 P) per texel: the LTC's M^-1 entries (a, b, c, d), the diffuse
+            weight kd (1 - ks) (0 where the diffuse term is off), and c_p S for every pattern (0
+            where the specular term is off).
+        known: (B, P, 3, H, W) K_p(x).
+    """
+
+    block_radiance: Tensor
+    texel: Tensor
+    known: Tensor
+
+
+def _block_average(rad: Tensor, k: int) -> Tensor:
+    """(..., 3, h, w) cell radiance -> (..., 3, k * k) block means."""
+    h, w = rad.shape[-2:]
+    if h % k or w % k:
+        raise ValueError(f"cv_blocks = {k} does not divide the LCD's {h} x {w} cells")
+    lead = rad.shape[:-2]
+    return torch.nn.functional.avg_pool2d(rad.reshape(-1, 1, h, w), (h // k, w // k)).reshape(*lead, k * k)
+
+
+def _block_uv(k: int, dtype=torch.float64) -> Tensor:
+    """(k + 1, k + 1, 2) uv of the block grid's vertices (u along columns, v along rows)."""
+    g = torch.arange(k + 1, dtype=dtype) / k
+    v, u = torch.meshgrid(g, g, indexing="ij")
+    return torch.stack([u, v], -1)
+
+
+@lru_cache(maxsize=8)
+def _block_form_factors(rig: Rig, height: int, width: int, k: int) -> Tensor:
+    """(H * W, K * K, 3) Phi'_b(x) = e_b(x) Phi_b(x) in world coordinates, float32 (geometry only)."""
+    lcd = rig.lcd_geometry(dtype=torch.float64)
+    verts = lcd.point(_block_uv(k))  # (k+1, k+1, 3)
+    quads = torch.stack([verts[:-1, :-1], verts[:-1, 1:], verts[1:, 1:], verts[1:, :-1]], 2).reshape(-1, 4, 3)
+    x = rig.surface_points((height, width)).double().reshape(-1, 3)
+    rel = quads[None] - x[:, None, None]  # (N, K^2, 4, 3)
+    phi = polygon_vector_form_factor(rel)
+    centre = rel.mean(2)
+    phi = phi * torch.sign((phi * centre).sum(-1, keepdim=True))  # towards the block
+    uv = (_block_uv(k)[:-1, :-1] + 0.5 / k).reshape(-1, 2)
+    cos_emit = (torch.nn.functional.normalize(-centre, dim=-1) @ lcd.normal)
+    decay = rig.display.decay(uv.expand(x.shape[0], -1, -1), cos_emit)
+    if decay is not None:
+        phi = phi * decay[..., None]
+    return phi.float()
+
+
+def _peak_block(rig: Rig, x: Tensor, d: Tensor, k: int) -> tuple[Tensor, Tensor]:
+    """Block index (N,) where rays x + t d (world, N x 3) meet the LCD (its centre when they point
+    away from it), and the decay factor of that block's centre towards x (N,)."""
+    lcd = rig.lcd_geometry(x.device, x.dtype)
+    denom = d @ lcd.normal
+    front = denom < -1e-6
+    t = ((lcd.origin - x) @ lcd.normal) / torch.where(front, denom, -torch.ones_like(denom))
+    rel = x + t[:, None] * d - lcd.origin
+    uv = torch.stack([rel @ lcd.edge_u / (lcd.edge_u @ lcd.edge_u), rel @ lcd.edge_v / (lcd.edge_v @ lcd.edge_v)], -1)
+    uv = torch.where(front[:, None], uv, torch.full_like(uv, 0.5))
+    ij = (uv * k).floor().clamp(0, k - 1)
+    block = (ij[:, 1] * k + ij[:, 0]).long()
+    centre_uv = (ij + 0.5) / k
+    to_x = torch.nn.functional.normalize(x - lcd.point(centre_uv), dim=-1)
+    decay = rig.display.decay(centre_uv, to_x @ lcd.normal)
+    return block, (torch.ones_like(denom) if decay is None else decay)
+
+
+def control_variate(svbrdf, patterns: Tensor, rig: Rig, *, mode: str = "ltc", blocks: int = 8,
+                    ltc_min_roughness: float = 0.1) -> ControlVariate:
+    """The control variate of B materials under P patterns ((P, 3, h, w) or (B, P, 3, h, w)).
+
+    ``mode``: "diffuse" or "ltc" (diffuse + specular); ``blocks``: K; see the module docstring.
+    """
+    if mode not in ("diffuse", "ltc"):
+        raise ValueError(f"control variate mode must be 'diffuse' or 'ltc', got {mode!r}")
+    B = svbrdf.batch_size
+    H, W = svbrdf.resolution
+    dev, dt = svbrdf.normal.device, svbrdf.normal.dtype
+    h, w = rig.lcd_cells
+    P = patterns.shape[-4]
+    rad = rig.material_radiance(patterns, B, dev, dt).reshape(B, P, 3, h, w)
+    lbar = _block_average(rad, blocks)  # (B, P, 3, K^2)
+
+    n = torch.nn.functional.normalize(svbrdf.normal.reshape(B, 3, -1).transpose(1, 2), dim=-1)  # (B, N, 3)
+    kd = svbrdf.diffuse.reshape(B, 3, -1).transpose(1, 2)
+    ks = svbrdf.specular.reshape(B, 3, -1).transpose(1, 2)
+    r = svbrdf.roughness.reshape(B, -1)
+    x = rig.surface_points((H, W), dev).reshape(-1, 3).to(dt)
+    wo = rig.view_directions((H, W), dev).reshape(-1, 3).to(dt)
+    corners = rig.lcd_corners.to(dev, dt)
+    cos_v = (n * wo).sum(-1)  # (B, N)
+    ok = (cos_v > 0) & (wo[:, 2] > 0)
+    above = (torch.einsum("bnk,cnk->bnc", n, (corners[:, None] - x[None])) > 0).all(-1)
+    kdd = torch.where((ok & above)[..., None], kd * (1 - ks), torch.zeros_like(kd))  # (B, N, 3)
+
+    phi = _block_form_factors(rig, H, W, blocks).to(dev, dt)  # (N, K^2, 3)
+    ff = torch.einsum("bnk,nck->bnc", n, phi)  # (B, N, K^2)
+    known = kdd[:, None] * torch.einsum("bnc,bpjc->bpnj", ff, lbar)  # (B, P, N, 3)
+
+    m_entries = torch.zeros(B, H * W, 4, dtype=dt, device=dev)
+    spec = torch.zeros(B, H * W, P, 3, dtype=dt, device=dev)
+    if mode == "ltc":
+        N = H * W
+        nf, wf = n.reshape(-1, 3), wo.repeat(B, 1)  # (B N, 3), materials outermost
+        frame, _ = view_frame(nf, wf)
+        m_inv, a_one, a_s = default_table().lookup(r.reshape(-1), cos_v.reshape(-1))
+        a, bb, c, d = m_inv[:, 0, 0], m_inv[:, 0, 2], m_inv[:, 1, 1], m_inv[:, 2, 0]
+        m_entries = torch.stack([a, bb, c, d], -1).reshape(B, N, 4)
+        rel = (corners[:, None] - x[None]).repeat(1, B, 1)  # (4, B N, 3)
+        local = torch.einsum("nak,vnk->nva", frame, rel)
+        e = clipped_polygon_vector_form_factor(torch.einsum("nab,nvb->nva", m_inv, local))[:, 2].abs()
+        # The lobe's peak direction M z: for M^-1 = [[a, 0, b], [0, c, 0], [d, 0, 1]], along (-b, 0, a)/(a - b d).
+        peak = torch.nn.functional.normalize(torch.stack([-bb, torch.zeros_like(a), a], -1)
+                                             * torch.sign(a - bb * d)[:, None], dim=-1)
+        block, decay = _peak_block(rig, x.repeat(B, 1), torch.einsum("nak,na->nk", frame, peak), blocks)
+        use = ok.reshape(-1) & (r.reshape(-1) >= ltc_min_roughness)
+        ksf = ks.reshape(-1, 3)
+        s = torch.where(use[:, None], ksf * (a_one - a_s)[:, None] + a_s[:, None], torch.zeros_like(ksf))
+        lb = lbar.permute(0, 3, 1, 2).reshape(B * blocks * blocks, P, 3)  # (B K^2, P, 3)
+        mat = torch.arange(B, device=dev).repeat_interleave(N)
+        cp = lb[mat * blocks * blocks + block]  # (B N, P, 3)
+        spec = (cp * (s * decay[:, None])[:, None]).reshape(B, N, P, 3)
+        known = known + (spec * e.reshape(B, N, 1, 1)).permute(0, 2, 1, 3)
+    texel = torch.cat([m_entries, kdd, spec.reshape(B, H * W, 3 * P)], -1)
+    return ControlVariate(block_radiance=lbar, texel=texel,
+                          known=known.permute(0, 1, 3, 2).reshape(B, P, 3, H, W))

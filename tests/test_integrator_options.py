@@ -1,0 +1,308 @@
+"""The ``importance`` integrator's estimators (sampler x control variate, chosen in the scene file):
+each converges to the reference renderer with every part of the display model, has correct and
+finite gradients, and the variance-reduced ones are measurably less noisy. Control variate's
+closed form (torch side) against the renderers it must equal.
+
+CPU (llvm_ad_rgb), 4-16 px; skipped when no libLLVM >= 16 is available.
+"""
+
+import math
+from pathlib import Path
+
+import numpy as np
+import pytest
+import torch
+
+import mitsvbrdf as ms
+from mitsvbrdf import backend
+from mitsvbrdf import patterns as pt
+from mitsvbrdf.errors import SceneError
+from mitsvbrdf.render.control_variate import control_variate
+
+from conftest import flat_material, textured_material
+
+pytestmark = pytest.mark.mitsuba
+if backend.find_libllvm() is None:  # pragma: no cover - depends on the machine
+    pytest.skip("no libLLVM >= 16 for the LLVM backend", allow_module_level=True)
+
+SCENE = Path(__file__).resolve().parents[1] / "scenes" / "lcd_rig.xml"
+
+#: name -> integrator options (the scene file's default is "ltc-cv")
+OPTIONS = {
+    "plain": {"sampler": "independent", "control_variate": "none"},
+    "stratified": {"sampler": "stratified", "control_variate": "none"},
+    "diffuse-cv": {"sampler": "stratified", "control_variate": "diffuse"},
+    "ltc-cv": {},
+    "ltc-cv-independent": {"sampler": "independent", "control_variate": "ltc"},
+    "ltc-cv-4-blocks": {"cv_blocks": 4},
+}
+DISPLAY = {
+    "plain-display": "",
+    "decay": '<float name="decay_cos_power" value="2"/><vector name="decay_gradient" x="-0.6" y="0.2" z="0"/>',
+    "gamma-matrix": '<float name="gamma" value="2.2"/>'
+                    '<string name="color_matrix" value="0.9 0.08 0.02 0.05 0.9 0.05 0.02 0.1 0.88"/>',
+}
+
+
+def _value(v):
+    return f'<integer name="cv_blocks" value="{v}"/>' if isinstance(v, int) else ""
+
+
+def scene_text(options: dict, display: str = "") -> str:
+    attrs = "".join(_value(v) if isinstance(v, int) else f'<string name="{k}" value="{v}"/>'
+                    for k, v in options.items())
+    text = SCENE.read_text().replace('<integrator type="importance"/>',
+                                     f'<integrator type="importance">{attrs}</integrator>')
+    return text.replace('<float name="intensity" value="1.0"/>', '<float name="intensity" value="1.0"/>' + display)
+
+
+@pytest.fixture(scope="module")
+def rigs(tmp_path_factory):
+    """(option, display) -> Rig of a scene file with those integrator options and display model."""
+    d = tmp_path_factory.mktemp("scenes")
+    out = {}
+    for name, opts in OPTIONS.items():
+        for dname, disp in DISPLAY.items():
+            path = d / f"{name}-{dname}.xml"
+            path.write_text(scene_text(opts, disp))
+            out[(name, dname)] = ms.Rig.from_scene(path)
+    return out
+
+
+def _rel_rmse(a, b):
+    return ((a - b).square().mean().sqrt() / b.square().mean().sqrt()).item()
+
+
+# ---- unbiased: every option converges to the reference --------------------------------------
+
+@pytest.mark.parametrize("option", OPTIONS)
+@pytest.mark.parametrize("roughness", [0.01, 0.1, 0.4, 1.0])
+def test_every_option_agrees_with_the_reference_on_flat_materials(rigs, option, roughness):
+    rig = rigs[(option, "plain-display")]
+    m = flat_material(8, diffuse=0.5, specular=0.3, roughness=roughness)
+    p = pt.monograd()[:3]
+    assert _rel_rmse(ms.render(m, p, rig, method="mitsuba", spp=16384), ms.render(m, p, rig)) < 0.01
+
+
+@pytest.mark.parametrize("option", OPTIONS)
+@pytest.mark.parametrize("display", DISPLAY)
+def test_every_option_agrees_with_the_reference_with_normal_maps_and_every_display_model(rigs, option, display):
+    rig = rigs[(option, display)]
+    m = textured_material(8, roughness=(0.05, 0.8))
+    p = torch.cat([pt.colorgrad()[1:3], pt.random(n=1, seed=3)])
+    assert _rel_rmse(ms.render(m, p, rig, method="mitsuba", spp=16384), ms.render(m, p, rig)) < 0.01
+
+
+@pytest.mark.parametrize("option", [o for o in OPTIONS if o != "plain"])
+def test_variance_reduced_options_are_within_2_percent_at_1024_spp(rigs, option):
+    rig = rigs[(option, "plain-display")]
+    m = textured_material(16, seed=3, roughness=(0.1, 0.9))
+    p = torch.cat([pt.monograd(), pt.colorgrad()[1:]])
+    assert _rel_rmse(ms.render(m, p, rig, method="mitsuba", spp=1024, seed=2), ms.render(m, p, rig)) < 0.02
+
+
+def test_tilted_normals_whose_horizon_cuts_the_lcd_stay_unbiased(rigs):
+    """Where the LCD crosses the horizon of n the diffuse control variate is off; still unbiased."""
+    lcd = rigs[("ltc-cv", "plain-display")].lcd_corners.mean(0)
+    az = math.atan2(float(lcd[1]), float(lcd[0])) + math.pi
+    t = math.radians(75)
+    m = flat_material(8, diffuse=0.6, specular=0.2, roughness=0.6,
+                      normal=(math.sin(t) * math.cos(az), math.sin(t) * math.sin(az), math.cos(t)))
+    rig = rigs[("ltc-cv", "plain-display")]
+    p = pt.monograd()[:2]
+    assert _rel_rmse(ms.render(m, p, rig, method="mitsuba", spp=16384), ms.render(m, p, rig)) < 0.01
+
+
+# ---- less noise ----------------------------------------------------------------------------
+
+def test_stratified_samples_reduce_the_error_at_equal_spp(rigs):
+    m = textured_material(16, seed=1, roughness=(0.3, 0.9))
+    p = pt.monograd()
+    ref = ms.render(m, p, rigs[("plain", "plain-display")])
+    plain = _rel_rmse(ms.render(m, p, rigs[("plain", "plain-display")], method="mitsuba", spp=16, seed=1), ref)
+    strat = _rel_rmse(ms.render(m, p, rigs[("stratified", "plain-display")], method="mitsuba", spp=16, seed=1), ref)
+    assert strat < 0.7 * plain
+
+
+def test_the_default_estimator_is_several_times_less_noisy_at_4_spp(rigs):
+    m = textured_material(16, seed=2, roughness=(0.1, 0.9))
+    p = pt.colorgrad()
+    ref = ms.render(m, p, rigs[("plain", "plain-display")])
+    plain = _rel_rmse(ms.render(m, p, rigs[("plain", "plain-display")], method="mitsuba", spp=4, seed=1), ref)
+    default = _rel_rmse(ms.render(m, p, ms.Rig.from_scene(), method="mitsuba", spp=4, seed=1), ref)
+    assert default < plain / 3
+
+
+# ---- gradients -----------------------------------------------------------------------------
+
+@pytest.mark.parametrize("option", ["stratified", "diffuse-cv", "ltc-cv"])
+def test_pattern_gradient_matches_finite_differences_and_the_reference(rigs, option):
+    rig = rigs[(option, "decay")]
+    m = textured_material(8, roughness=(0.2, 0.5))
+    w = torch.rand(1, 1, 3, 8, 8, generator=torch.Generator().manual_seed(0))
+    p = pt.monograd()[1:2].clone()
+    cell = (0, 1, 12, 12)
+
+    def loss(q, method, **kw):
+        return (ms.render(m, q, rig, method=method, **kw) * w).sum()
+
+    grads = []
+    for seed in range(4):
+        q = p.clone().requires_grad_(True)
+        (g,) = torch.autograd.grad(loss(q, "mitsuba", spp=2048, seed=seed), q)
+        grads.append(g[cell].item())
+    e = torch.zeros_like(p)
+    e[cell] = 0.1
+    with torch.no_grad():  # same seed, same samples: the estimate is linear in the pattern
+        fd = (loss(p + e, "mitsuba", spp=2048, seed=3) - loss(p - e, "mitsuba", spp=2048, seed=3)) / 0.2
+    assert abs(grads[-1] - fd.item()) <= 1e-3 * abs(fd.item()) + 1e-7
+    q = p.clone().requires_grad_(True)
+    (g_ref,) = torch.autograd.grad(loss(q, "reference"), q)
+    mean, sem = np.mean(grads), np.std(grads, ddof=1) / 2
+    assert abs(mean - g_ref[cell].item()) <= 4 * sem + 0.01 * abs(g_ref[cell].item())
+
+
+@pytest.mark.parametrize("option", ["stratified", "ltc-cv"])
+@pytest.mark.parametrize("name", ["roughness", "normal", "diffuse"])
+def test_map_gradients_match_finite_differences_and_the_reference(rigs, option, name):
+    rig = rigs[(option, "plain-display")]
+    m = textured_material(4, roughness=(0.3, 0.6))
+    p = pt.monograd()[1:2]
+    texel = (0, 0, 1, 2)
+    step = {"roughness": 0.02, "normal": 0.02, "diffuse": 0.05}[name]
+
+    def with_map(t):
+        maps = m.maps()
+        maps[name] = t / t.norm(dim=1, keepdim=True) if name == "normal" else t  # the x tilt of one normal
+        return ms.SVBRDF(**maps)
+
+    def grad(method, **kw):
+        t = m.maps()[name].detach().clone().requires_grad_(True)
+        (g,) = torch.autograd.grad(ms.render(with_map(t), p, rig, method=method, **kw).sum(), t)
+        return g[texel].item()
+
+    g_mi = np.mean([grad("mitsuba", spp=8192, seed=s) for s in range(2)])
+    g_ref = grad("reference")
+    assert abs(g_mi - g_ref) <= 0.1 * abs(g_ref)
+
+    def value(t):
+        return np.mean([ms.render(with_map(t), p, rig, method="mitsuba", spp=8192, seed=s).sum().item()
+                        for s in range(2)])
+
+    e = torch.zeros_like(m.maps()[name])
+    e[texel] = step
+    base = m.maps()[name]
+    fd = (value(base + e) - value(base - e)) / (2 * step)  # same seeds: common random numbers
+    assert abs(fd - g_mi) <= 0.1 * abs(g_ref)
+
+
+EXTREMES = ["r0.001", "r1", "tilt89", "black", "saturated", "single_cell"]
+
+
+@pytest.mark.parametrize("option", OPTIONS)
+@pytest.mark.parametrize("case", EXTREMES)
+def test_extremes_give_finite_values_and_gradients(rigs, option, case):
+    rig = rigs[(option, "plain-display")]
+    m = textured_material(8)
+    maps = {k: v.clone() for k, v in m.maps().items()}
+    p = pt.random(n=2, seed=0)
+    if case == "r0.001":
+        maps["roughness"].fill_(0.001)
+    elif case == "r1":
+        maps["roughness"].fill_(1.0)
+    elif case == "tilt89":
+        t = math.radians(89)
+        maps["normal"] = torch.tensor([math.sin(t), 0.0, math.cos(t)]).view(1, 3, 1, 1).expand(1, 3, 8, 8).clone()
+    elif case == "black":
+        p = torch.zeros(2, 3, 32, 32)
+    elif case == "saturated":
+        p = torch.ones(2, 3, 32, 32)
+    else:
+        p = torch.zeros(2, 3, 32, 32)
+        p[:, :, 16, 16] = 1.0
+    for t in maps.values():
+        t.requires_grad_(True)
+    p = p.requires_grad_(True)
+    img = ms.render(ms.SVBRDF(**maps), p, rig, method="mitsuba", spp=8)
+    assert torch.isfinite(img).all()
+    img.sum().backward()
+    for t in (*maps.values(), p):
+        assert torch.isfinite(t.grad).all()
+
+
+# ---- one pass, batches, no recompilation -----------------------------------------------------
+
+@pytest.mark.parametrize("option", ["ltc-cv", "diffuse-cv"])
+def test_all_patterns_and_materials_in_one_pass_equal_separate_renders(rigs, option):
+    rig = rigs[(option, "decay")]
+    m = ms.SVBRDF.cat([textured_material(8, seed=1), textured_material(8, seed=2)])
+    p = torch.stack([pt.random(n=3, seed=1), pt.random(n=3, seed=2)])
+    both = ms.render(m, p, rig, method="mitsuba", spp=8, seed=3)
+    for k in range(3):  # material 1 alone uses seed + 1
+        alone = ms.render(m[1], p[1, k:k + 1], rig, method="mitsuba", spp=8, seed=4)
+        torch.testing.assert_close(both[1, k], alone[0, 0], rtol=1e-4, atol=1e-6)
+
+
+@pytest.mark.parametrize("option", ["ltc-cv", "plain"])
+def test_new_data_and_seed_reuse_the_compiled_kernels(rigs, option):
+    import drjit as dr
+    rig = rigs[(option, "plain-display")]
+    m1, m2 = textured_material(8, seed=1), textured_material(8, seed=2)
+    ms.render(m1, pt.random(n=2, seed=1), rig, method="mitsuba", spp=4, seed=0)
+    dr.set_flag(dr.JitFlag.KernelHistory, True)
+    dr.kernel_history()  # clear
+    ms.render(m2, pt.random(n=2, seed=2), rig, method="mitsuba", spp=4, seed=5)
+    hist = [k for k in dr.kernel_history() if k.get("type") == dr.KernelType.JIT]
+    dr.set_flag(dr.JitFlag.KernelHistory, False)
+    assert hist and all(k["cache_hit"] for k in hist)
+
+
+# ---- the closed form (torch side) ----------------------------------------------------------
+
+def test_diffuse_control_variate_at_cell_blocks_is_the_exact_diffuse_image(rig):
+    """With one block per cell and no decay, the diffuse term's closed form is exact: it equals
+    the reference renderer's diffuse lobe (tolerance: the reference's own quadrature error,
+    below 6e-4 in docs/benchmarks/reference_accuracy.md)."""
+    m = textured_material(8, seed=4)
+    p = torch.cat([pt.monograd(), pt.random(n=2, seed=5)])
+    cv = control_variate(m, p, rig, mode="diffuse", blocks=32)
+    ref = ms.render(m, p, rig, lobes="diffuse")
+    assert _rel_rmse(cv.known, ref) < 2e-3
+
+
+def test_ltc_control_variate_under_a_uniform_pattern_is_the_ltc_specular_image(rig):
+    """Under one uniform pattern every block has the same radiance, so the specular term's closed
+    form is the LTC renderer's specular lobe (which integrates the same LTC over every cell)."""
+    m = textured_material(8, seed=4, roughness=(0.2, 0.9))
+    p = pt.uniform(value=0.7)
+    spec = control_variate(m, p, rig, mode="ltc").known - control_variate(m, p, rig, mode="diffuse").known
+    ltc = ms.render(m, p, rig, method="ltc", lobes="specular")
+    assert _rel_rmse(spec, ltc) < 1e-4
+
+
+def test_diffuse_control_variate_is_off_where_the_lcd_crosses_the_horizon(rig):
+    lcd = rig.lcd_corners.mean(0)
+    az = math.atan2(float(lcd[1]), float(lcd[0])) + math.pi
+    t = math.radians(75)
+    m = flat_material(4, normal=(math.sin(t) * math.cos(az), math.sin(t) * math.sin(az), math.cos(t)))
+    cv = control_variate(m, pt.uniform(), rig, mode="diffuse")
+    assert cv.texel[..., 4:7].abs().max() == 0 and cv.known.abs().max() == 0
+
+
+# ---- bad options -----------------------------------------------------------------------------
+
+@pytest.mark.parametrize("options,match", [({"sampler": "sobol"}, "sampler"),
+                                           ({"control_variate": "pca"}, "control_variate"),
+                                           ({"cv_blocks": 0}, "cv_blocks")])
+def test_bad_integrator_options_are_clear_errors(tmp_path, options, match):
+    path = tmp_path / "bad.xml"
+    path.write_text(scene_text(options))
+    with pytest.raises(SceneError, match=match):
+        ms.render(flat_material(4), pt.uniform(), ms.Rig.from_scene(path), method="mitsuba", spp=1)
+
+
+def test_blocks_that_do_not_tile_the_lcd_are_a_clear_error(tmp_path):
+    path = tmp_path / "blocks.xml"
+    path.write_text(scene_text({"cv_blocks": 5}))
+    with pytest.raises(ValueError, match="cv_blocks = 5"):
+        ms.render(flat_material(4), pt.uniform(), ms.Rig.from_scene(path), method="mitsuba", spp=1)

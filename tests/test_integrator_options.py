@@ -16,6 +16,7 @@ import torch
 import mitsvbrdf as ms
 from mitsvbrdf import backend
 from mitsvbrdf import patterns as pt
+from mitsvbrdf.capture.scene_file import write_integrator_options
 from mitsvbrdf.errors import SceneError
 from mitsvbrdf.render.control_variate import control_variate
 
@@ -44,16 +45,12 @@ DISPLAY = {
 }
 
 
-def _value(v):
-    return f'<integer name="cv_blocks" value="{v}"/>' if isinstance(v, int) else ""
-
-
-def scene_text(options: dict, display: str = "") -> str:
-    attrs = "".join(_value(v) if isinstance(v, int) else f'<string name="{k}" value="{v}"/>'
-                    for k, v in options.items())
-    text = SCENE.read_text().replace('<integrator type="importance"/>',
-                                     f'<integrator type="importance">{attrs}</integrator>')
-    return text.replace('<float name="intensity" value="1.0"/>', '<float name="intensity" value="1.0"/>' + display)
+def scene_with(path, options: dict, display: str = "") -> Path:
+    """A copy of the default scene with these integrator options and display-model parameters."""
+    write_integrator_options(SCENE, path, **options)
+    text = path.read_text()
+    path.write_text(text.replace('<float name="intensity" value="1.0"', display + '<float name="intensity" value="1.0"'))
+    return path
 
 
 @pytest.fixture(scope="module")
@@ -63,9 +60,7 @@ def rigs(tmp_path_factory):
     out = {}
     for name, opts in OPTIONS.items():
         for dname, disp in DISPLAY.items():
-            path = d / f"{name}-{dname}.xml"
-            path.write_text(scene_text(opts, disp))
-            out[(name, dname)] = ms.Rig.from_scene(path)
+            out[(name, dname)] = ms.Rig.from_scene(scene_with(d / f"{name}-{dname}.xml", opts, disp))
     return out
 
 
@@ -295,14 +290,12 @@ def test_diffuse_control_variate_is_off_where_the_lcd_crosses_the_horizon(rig):
                                            ({"control_variate": "pca"}, "control_variate"),
                                            ({"cv_blocks": 0}, "cv_blocks")])
 def test_bad_integrator_options_are_clear_errors(tmp_path, options, match):
-    path = tmp_path / "bad.xml"
-    path.write_text(scene_text(options))
+    path = scene_with(tmp_path / "bad.xml", options)
     with pytest.raises(SceneError, match=match):
         ms.render(flat_material(4), pt.uniform(), ms.Rig.from_scene(path), method="mitsuba", spp=1)
 
 
 def test_blocks_that_do_not_tile_the_lcd_are_a_clear_error(tmp_path):
-    path = tmp_path / "blocks.xml"
-    path.write_text(scene_text({"cv_blocks": 5}))
+    path = scene_with(tmp_path / "blocks.xml", {"cv_blocks": 5})
     with pytest.raises(ValueError, match="cv_blocks = 5"):
         ms.render(flat_material(4), pt.uniform(), ms.Rig.from_scene(path), method="mitsuba", spp=1)

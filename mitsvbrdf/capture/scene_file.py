@@ -1,4 +1,5 @@
-"""Calibration results written back into a Mitsuba scene file, and read from it.
+"""Calibration results written back into a Mitsuba scene file, and read from it; scene variants
+with other integrator options.
 
 Geometry and the display model go into the scene's own elements (the LCD shape's ``to_world``,
 the ``lcd`` emitter's parameters, the sensor's ``fov`` and principal point), so the renderers and
@@ -46,6 +47,25 @@ def set_defaults(root: ET.Element, **values: str) -> None:
         else:
             at = len(root.findall("default"))
             root.insert(at, ET.Element("default", {"name": name, "value": value}))
+
+
+def write_integrator_options(scene: str | Path, out: str | Path, **options: str | int | float) -> Path:
+    """Copy ``scene`` to ``out`` with these parameters on its integrator (``sampler="independent"``,
+    ``cv_blocks=16``, ...; see plugins/importance_integrator.py), replacing any of the same name."""
+    tags = {str: "string", int: "integer", float: "float"}
+
+    def edit(root: ET.Element) -> None:
+        integ = root.find("integrator")
+        if integ is None:
+            raise SceneError(f"{scene}: the scene has no <integrator>")
+        for name, value in options.items():
+            if type(value) not in tags:
+                raise ValueError(f"integrator option {name}={value!r}: a string, integer or float")
+            for old in [e for e in integ if e.get("name") == name]:
+                integ.remove(old)
+            integ.append(ET.Element(tags[type(value)], {"name": name, "value": str(value)}))
+
+    return edit_scene(scene, out, edit)
 
 
 def write_camera_calibration(scene: str | Path, out: str | Path, *, response: Response | None = None,

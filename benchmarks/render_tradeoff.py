@@ -1,20 +1,34 @@
-"""Speed/accuracy trade of the renderers against the reference: LTC (exact, prefiltered), Mitsuba.
+"""Speed/accuracy trade of the renderers against the reference: LTC (exact, prefiltered), and the
+Mitsuba path with each estimator of the ``importance`` integrator.
 
-    .venv/bin/python benchmarks/render_tradeoff.py            # writes docs/benchmarks/render_tradeoff.*
+    .venv/bin/python benchmarks/render_tradeoff.py            # writes docs/benchmarks/render_tradeoff*.{md,csv,png}
     .venv/bin/python benchmarks/render_tradeoff.py --quick    # smoke run, nothing written
 
-Materials: the bundled example's normal and diffuse maps with constant roughness r and ks = 0.3,
-for r in {0.01, 0.05, 0.1, 0.3, 0.6, 1.0}, plus a near-grazing case (r = 0.3 with every normal
-tilted 70 degrees away from the camera's azimuth). Patterns: MonoGrad, 5 random, 4 step edges.
-Error: relative RMSE of each method's images against the reference renderer (default settings) at
-``--error-size``; time: one material under 5 patterns at ``--time-size`` on this machine's CPU.
-Prints a table, writes CSV + markdown, and a plot of error vs. time (one curve per method).
+Study 1 (roughness): the bundled example's normal and diffuse maps with constant roughness r and
+ks = 0.3, for r in {0.01, 0.05, 0.1, 0.3, 0.6, 1.0}, plus a near-grazing case (r = 0.3 with every
+normal tilted 70 degrees away from the camera's azimuth). Patterns: MonoGrad, 5 random, 4 step
+edges. Error: relative RMSE of each method's images against the reference renderer (default
+settings) at ``--error-size``; time: one material under 5 patterns at ``--time-size`` on this
+machine's CPU. For every roughness it also states whether the default estimator, at the CPU time
+of LTC-prefiltered (interpolated on its error-vs-time curve), has at most half LTC-prefiltered's
+error.
+
+Study 2 (procedural): ``generate(4, size=64, seed=123)`` under MonoGrad, ColorGrad and the shipped
+networks' adaptive patterns (L_0 + the 4 predicted for each material); relative RMSE per material
+and pattern group for every estimator and spp, and time per batch. It prints the default
+estimator's worst 4-spp error (the goal: <= 0.05).
+
+Estimators (:data:`ESTIMATORS`, integrator options in a copy of the scene file): "plain" (the
+integrator before control variates: independent samples, no control variate), "stratified",
+"diffuse-cv", "ltc-cv" (the default) and "ltc-cv" with 4 and 16 blocks.
+Prints tables, writes CSV + markdown, and plots of error vs. time and vs. spp.
 """
 
 from __future__ import annotations
 
 import argparse
 import math
+import tempfile
 import time
 from pathlib import Path
 
@@ -22,11 +36,21 @@ import torch
 
 import mitsvbrdf as ms
 from mitsvbrdf.cli import _resize_svbrdf
-from mitsvbrdf.patterns import monograd, random, step_edges
+from mitsvbrdf.patterns import colorgrad, monograd, random, step_edges
 from report import write_report
+
+from mitsvbrdf.capture.scene_file import write_integrator_options
 
 ROOT = Path(__file__).resolve().parent.parent
 SPPS = (1, 4, 16, 64, 256)
+DEFAULT = "ltc-cv"
+#: name -> integrator options (empty: the scene file's defaults)
+ESTIMATORS = {"plain": {"sampler": "independent", "control_variate": "none"},
+              "stratified": {"sampler": "stratified", "control_variate": "none"},
+              "diffuse-cv": {"control_variate": "diffuse"},
+              DEFAULT: {},
+              "ltc-cv-4-blocks": {"cv_blocks": 4},
+              "ltc-cv-16-blocks": {"cv_blocks": 16}}
 
 
 def material(size: int, roughness: float, tilt_deg: float | None = None) -> ms.SVBRDF:
@@ -69,27 +93,121 @@ def uniform_lcd_bias(rig: ms.Rig, size: int = 8) -> list[dict]:
     return rows
 
 
-def methods():
-    """(name, render function(svbrdf, patterns, rig, seed)) for every method of the study."""
-    out = [("ltc-exact", lambda m, p, rig, s: ms.render(m, p, rig, method="ltc", mode="exact")),
-           ("ltc-prefiltered", lambda m, p, rig, s: ms.render(m, p, rig, method="ltc", mode="prefiltered"))]
-    for spp in SPPS:
-        out.append((f"mitsuba-{spp}spp",
-                    lambda m, p, rig, s, spp=spp: ms.render(m, p, rig, method="mitsuba", spp=spp, seed=s)))
+def estimator_rigs(work: Path) -> dict[str, ms.Rig]:
+    """A rig per estimator: the default scene with that estimator's integrator options."""
+    scene = ROOT / "scenes" / "lcd_rig.xml"
+    return {name: ms.Rig.from_scene(write_integrator_options(scene, work / f"{name}.xml", **opts))
+            for name, opts in ESTIMATORS.items()}
+
+
+def methods(rigs: dict[str, ms.Rig], spps=SPPS):
+    """(name, render function(svbrdf, patterns, seed)) for every method of the study."""
+    base = rigs[DEFAULT]
+    out = [("ltc-exact", lambda m, p, s: ms.render(m, p, base, method="ltc", mode="exact")),
+           ("ltc-prefiltered", lambda m, p, s: ms.render(m, p, base, method="ltc", mode="prefiltered"))]
+    for est, rig in rigs.items():
+        for spp in spps:
+            out.append((f"{est}-{spp}spp",
+                        lambda m, p, s, spp=spp, rig=rig: ms.render(m, p, rig, method="mitsuba", spp=spp, seed=s)))
     return out
+
+
+def rel_rmse(img: torch.Tensor, ref: torch.Tensor) -> float:
+    return ((img - ref).square().mean().sqrt() / ref.square().mean().sqrt()).item()
+
+
+def timed(fn, *args, repeats: int = 3) -> float:
+    """Seconds of one call after a warm-up call (kernels compiled, caches filled): the fastest of
+    ``repeats``, since other work on a shared machine only ever adds time."""
+    fn(*args[:-1], 0)
+    best = math.inf
+    for _ in range(repeats):
+        t0 = time.perf_counter()
+        fn(*args)
+        best = min(best, time.perf_counter() - t0)
+    return best
+
+
+def at_time(rows: list[dict], est: str, key: str, seconds: float) -> float:
+    """Error of estimator ``est`` at ``seconds``, interpolated log-log along its spp curve (clamped
+    to the measured range)."""
+    pts = sorted((r["seconds_per_material_5_patterns"], r[key]) for r in rows if r["method"].startswith(est + "-")
+                 and r["method"][len(est) + 1:].rstrip("spp").isdigit())
+    if seconds <= pts[0][0]:
+        return pts[0][1]
+    for (t0, e0), (t1, e1) in zip(pts, pts[1:]):
+        if t0 <= seconds <= t1:
+            f = (math.log(seconds) - math.log(t0)) / max(math.log(t1) - math.log(t0), 1e-12)
+            return math.exp(math.log(e0) + f * (math.log(e1) - math.log(e0)))
+    return pts[-1][1]
+
+
+def procedural_study(rigs: dict[str, ms.Rig], n: int, size: int, spps) -> tuple[list[dict], list[str]]:
+    """Study 2: per estimator and spp, relative RMSE per (pattern group, material) and time."""
+    from mitsvbrdf.data.procedural import generate
+    from mitsvbrdf.demo import DEFAULT_NETWORKS, load_pipeline
+
+    mats = generate(n, size=size, seed=123)
+    base = rigs[DEFAULT]
+    with torch.no_grad():
+        acq = load_pipeline(DEFAULT_NETWORKS, base).simulate(mats, method="reference")
+    acq = acq if isinstance(acq, list) else [acq]
+    groups = {"monograd": monograd(), "colorgrad": colorgrad(), "adaptive": torch.stack([a.patterns for a in acq])}
+    refs = {g: ms.render(mats, p, base) for g, p in groups.items()}
+    rows = []
+    for est, rig in rigs.items():
+        for spp in spps:
+            def fn(m, p, s, rig=rig, spp=spp):
+                return ms.render(m, p, rig, method="mitsuba", spp=spp, seed=s)
+            row = {"estimator": est, "spp": spp, "seconds_batch": round(timed(fn, mats, groups["monograd"], 1), 4)}
+            for g, p in groups.items():
+                img = fn(mats, p, 7)
+                for b in range(n):
+                    row[f"{g}/{b}"] = round(rel_rmse(img[b], refs[g][b]), 5)
+            row["worst"] = max(v for k, v in row.items() if "/" in k)
+            row["median"] = float(torch.tensor([v for k, v in row.items() if "/" in k]).median())
+            rows.append(row)
+            print(row, flush=True)
+    keys = [k for k in rows[0] if "/" in k]
+    lines = [f"## Procedural materials: every estimator", "",
+             f"`generate({n}, size={size}, seed=123)` under MonoGrad, ColorGrad and the shipped networks' adaptive "
+             f"patterns (L_0 + 4 predicted per material, from a reference-rendered I_0); relative RMSE against the "
+             f"reference per pattern group / material; time for the batch of {n} materials under 5 patterns "
+             f"({torch.get_num_threads()} threads).", "",
+             "| estimator | spp | time (s) | median | worst | " + " | ".join(keys) + " |",
+             "|---|---:|---:|---:|---:|" + "---:|" * len(keys)]
+    lines += [f"| {r['estimator']} | {r['spp']} | {r['seconds_batch']} | {r['median']:.4f} | {r['worst']:.4f} | "
+              + " | ".join(f"{r[k]:.4f}" for k in keys) + " |" for r in rows]
+    by = {(r["estimator"], r["spp"]): r for r in rows}
+    if (DEFAULT, 4) in by and ("plain", 4) in by:
+        d, p = by[(DEFAULT, 4)], by[("plain", 4)]
+        lines += ["", f"At 4 spp the default estimator ({DEFAULT}) has relative RMSE {min(d[k] for k in keys):.4f}-"
+                      f"{d['worst']:.4f} (goal <= 0.05: {'met' if d['worst'] <= 0.05 else 'NOT met'}); the plain "
+                      f"estimator {min(p[k] for k in keys):.4f}-{p['worst']:.4f}. Time at 4 spp: "
+                      f"{d['seconds_batch']:.3f} s against {p['seconds_batch']:.3f} s "
+                      f"({d['seconds_batch'] / p['seconds_batch']:.2f}x; goal <= 1.5x: "
+                      f"{'met' if d['seconds_batch'] <= 1.5 * p['seconds_batch'] else 'NOT met'})."]
+    return rows, lines
 
 
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
     ap.add_argument("--error-size", type=int, default=32)
     ap.add_argument("--time-size", type=int, default=128)
+    ap.add_argument("--procedural-n", type=int, default=4)
+    ap.add_argument("--procedural-size", type=int, default=64)
+    ap.add_argument("--skip-ltc-exact", action="store_true", help="leave out LTC-exact (20 s per timing at 128 px)")
     ap.add_argument("--quick", action="store_true")
     ap.add_argument("--out", type=Path, default=ROOT / "docs" / "benchmarks")
     args = ap.parse_args()
     cases = [(r, None) for r in (0.01, 0.05, 0.1, 0.3, 0.6, 1.0)] + [(0.3, 70.0)]
+    spps = SPPS
     if args.quick:
-        args.error_size, args.time_size, cases = 16, 32, [(0.05, None), (0.6, None)]
-    rig = ms.Rig.from_scene()
+        args.error_size, args.time_size, cases, spps = 16, 32, [(0.05, None), (0.6, None)], (1, 4)
+        args.procedural_n, args.procedural_size = 2, 16
+    work = Path(tempfile.mkdtemp(prefix="render_tradeoff-"))
+    rigs = estimator_rigs(work)
+    rig = rigs[DEFAULT]
     pats = torch.cat([monograd(), random(n=5, seed=0), step_edges(n=4)])
 
     rows = []
@@ -98,33 +216,42 @@ def main() -> None:
         for r, tilt in cases:
             m = material(args.error_size, r, tilt)
             refs[(r, tilt)] = (m, ms.render(m, pats, rig))
-        for name, fn in methods():  # time: one material under 5 patterns
-            m = material(args.time_size, 0.3)
-            fn(m, pats[:5], rig, 0)  # warm-up / compile
-            t0 = time.perf_counter()
-            fn(m, pats[:5], rig, 1)
-            seconds = time.perf_counter() - t0
-            errs = {}
-            for (r, tilt), (m, ref) in refs.items():
-                img = fn(m, pats, rig, 2)
-                errs[(r, tilt)] = ((img - ref).square().mean().sqrt() / ref.square().mean().sqrt()).item()
+        for name, fn in methods(rigs, spps):  # time: one material under 5 patterns
+            if name == "ltc-exact" and (args.skip_ltc_exact or args.quick):
+                continue
+            seconds = timed(fn, material(args.time_size, 0.3), pats[:5], 1, repeats=1 if name == "ltc-exact" else 3)
+            errs = {key: rel_rmse(fn(m, pats, 2), ref) for key, (m, ref) in refs.items()}
             row = {"method": name, "seconds_per_material_5_patterns": round(seconds, 4)}
             row.update({f"r={r}" + (f",tilt={tilt:g}" if tilt else ""): round(e, 5) for (r, tilt), e in errs.items()})
             rows.append(row)
             print(row, flush=True)
 
     keys = [k for k in rows[0] if k.startswith("r=")]
-    lines = [f"Relative RMSE against the reference renderer ({args.error_size}x{args.error_size} px, MonoGrad + "
+    lines = [f"## Roughness study", "",
+             f"Relative RMSE against the reference renderer ({args.error_size}x{args.error_size} px, MonoGrad + "
              f"5 random + 4 step-edge patterns, ks = 0.3, the example's normal map; 'tilt=70' replaces it by normals "
              f"tilted 70 degrees, near-grazing views) and CPU time for one {args.time_size}x{args.time_size} material "
-             f"under 5 patterns ({torch.get_num_threads()} threads).", "",
+             f"under 5 patterns ({torch.get_num_threads()} threads). Mitsuba rows are estimator-spp.", "",
              "| method | time (s) | " + " | ".join(keys) + " |", "|---|---:|" + "---:|" * len(keys)]
     lines += [f"| {r['method']} | {r['seconds_per_material_5_patterns']} | " +
               " | ".join(f"{r[k]:.4f}" for k in keys) + " |" for r in rows]
     ltc = {r["method"]: r for r in rows}
-    worst = {k: max(ltc["ltc-exact"][k], ltc["ltc-prefiltered"][k]) for k in keys}
+    ltc_names = [n for n in ("ltc-exact", "ltc-prefiltered") if n in ltc]
+    worst = {k: max(ltc[n][k] for n in ltc_names) for k in keys}
     fails = [f"{k} ({worst[k]:.1%})" for k in keys if worst[k] > 0.05]
-    lines += ["", "LTC errors above 5% (worse of its two modes): " + (", ".join(fails) if fails else "none") + "."]
+    lines += ["", "LTC errors above 5% (worse of its modes): " + (", ".join(fails) if fails else "none") + "."]
+    pre = ltc["ltc-prefiltered"]
+    t_pre = pre["seconds_per_material_5_patterns"]
+    verdict = []
+    for k in keys:
+        e = at_time(rows, DEFAULT, k, t_pre)
+        verdict.append(f"{k}: {e:.4f} vs {pre[k]:.4f} ({'half or less' if e <= 0.5 * pre[k] else 'NOT half'})")
+    lines += ["", f"At LTC-prefiltered's CPU time ({t_pre:.3f} s), the default estimator ({DEFAULT}, interpolated "
+                  f"along its spp curve) against LTC-prefiltered: " + "; ".join(verdict) + "."]
+
+    with torch.no_grad():
+        proc_rows, proc_lines = procedural_study(rigs, args.procedural_n, args.procedural_size, spps)
+    lines += [""] + proc_lines
 
     bias = uniform_lcd_bias(rig, size=8 if not args.quick else 4)
     rkeys = [f"r={r}" for r in BIAS_ROUGHNESS]
@@ -141,30 +268,55 @@ def main() -> None:
     if args.quick:
         return
     write_report(args.out, "render_tradeoff", "Renderer speed/accuracy trade", "render_tradeoff.py", text + "\n"
-                 "![error vs time](render_tradeoff.png)\n", rows)
+                 "![error vs time](render_tradeoff.png)\n\n![procedural: error vs spp and time](render_tradeoff_procedural.png)\n",
+                 rows)
+    write_report(args.out, "render_tradeoff_procedural", "Estimators on procedural materials", "render_tradeoff.py",
+                 "See render_tradeoff.md.\n", proc_rows)
     write_report(args.out, "render_tradeoff_uniform_lcd", "LTC bias under one uniform LCD", "render_tradeoff.py",
                  "See render_tradeoff.md.\n", bias)
+    plot(rows, keys, proc_rows, args)
+
+
+def plot(rows: list[dict], keys: list[str], proc_rows: list[dict], args) -> None:
     import matplotlib
 
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 
-    fig, ax = plt.subplots(figsize=(7, 4.5))
+    fig, ax = plt.subplots(figsize=(7.5, 4.8))
     # median over materials: one grazing outlier would otherwise hide the typical error
-    mean_err = {r["method"]: float(torch.tensor([r[k] for k in keys]).median()) for r in rows}
+    med = {r["method"]: float(torch.tensor([r[k] for k in keys]).median()) for r in rows}
     secs = {r["method"]: r["seconds_per_material_5_patterns"] for r in rows}
-    mi_names = [n for n in secs if n.startswith("mitsuba")]
-    ax.plot([secs[n] for n in mi_names], [mean_err[n] for n in mi_names], "o-", label="Mitsuba (1..256 spp)")
+    for est in ESTIMATORS:
+        names = [n for n in secs if n.startswith(est + "-") and n[len(est) + 1:].rstrip("spp").isdigit()]
+        ax.plot([secs[n] for n in names], [med[n] for n in names], "o-", label=f"Mitsuba {est} (1..256 spp)",
+                linewidth=2.5 if est == DEFAULT else 1.2)
     for n, marker in (("ltc-exact", "s"), ("ltc-prefiltered", "^")):
-        ax.plot([secs[n]], [mean_err[n]], marker, markersize=9, label=n)
-    ax.set_xscale("log")
-    ax.set_yscale("log")
-    ax.set_xlabel(f"CPU seconds per {args.time_size}x{args.time_size} material, 5 patterns")
-    ax.set_ylabel("relative RMSE vs reference (median over materials)")
+        if n in secs:
+            ax.plot([secs[n]], [med[n]], marker, markersize=9, label=n)
+    ax.set(xscale="log", yscale="log", xlabel=f"CPU seconds per {args.time_size}x{args.time_size} material, 5 patterns",
+           ylabel="relative RMSE vs reference (median over materials)")
     ax.grid(True, which="both", alpha=0.3)
-    ax.legend()
+    ax.legend(fontsize=7)
     fig.tight_layout()
     fig.savefig(args.out / "render_tradeoff.png", dpi=120)
+    plt.close(fig)
+
+    fig, axes = plt.subplots(1, 2, figsize=(11, 4.5))
+    for est in ESTIMATORS:
+        pts = [r for r in proc_rows if r["estimator"] == est]
+        for ax, x in zip(axes, ("spp", "seconds_batch")):
+            ax.plot([r[x] for r in pts], [r["median"] for r in pts], "o-", label=est,
+                    linewidth=2.5 if est == DEFAULT else 1.2)
+    for ax, label in zip(axes, ("samples per texel", f"CPU seconds per batch of {args.procedural_n} materials")):
+        ax.axhline(0.05, color="grey", linestyle=":", label="5%")
+        ax.set(xscale="log", yscale="log", xlabel=label, ylabel="relative RMSE (median over materials and groups)")
+        ax.grid(True, which="both", alpha=0.3)
+    axes[0].legend(fontsize=8)
+    fig.suptitle(f"Procedural {args.procedural_size} px materials: MonoGrad, ColorGrad, adaptive patterns")
+    fig.tight_layout()
+    fig.savefig(args.out / "render_tradeoff_procedural.png", dpi=120)
+    plt.close(fig)
 
 
 if __name__ == "__main__":

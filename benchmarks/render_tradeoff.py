@@ -20,7 +20,8 @@ estimator's worst 4-spp error (the goal: <= 0.05).
 
 Estimators (:data:`ESTIMATORS`, integrator options in a copy of the scene file): "plain" (the
 integrator before control variates: independent samples, no control variate), "stratified",
-"diffuse-cv", "ltc-cv" (the default) and "ltc-cv" with 4 and 16 blocks.
+"diffuse-cv", "ltc-cv" (the default), "ltc-cv" with 4 and 16 blocks, and "ltc-cv" with the LCD sampled by the
+patterns' brightness.
 Prints tables, writes CSV + markdown, and plots of error vs. time and vs. spp.
 """
 
@@ -50,7 +51,8 @@ ESTIMATORS = {"plain": {"sampler": "independent", "control_variate": "none"},
               "diffuse-cv": {"control_variate": "diffuse"},
               DEFAULT: {},
               "ltc-cv-4-blocks": {"cv_blocks": 4},
-              "ltc-cv-16-blocks": {"cv_blocks": 16}}
+              "ltc-cv-16-blocks": {"cv_blocks": 16},
+              "ltc-cv-pattern-light": {"light_sampling": "patterns"}}
 
 
 def material(size: int, roughness: float, tilt_deg: float | None = None) -> ms.SVBRDF:

@@ -1,9 +1,9 @@
 """``importance``: one-bounce direct illumination from the LCD, every pattern in one pass.
 
 A flat sample under a planar light has no inter-reflection, so one bounce is the whole light
-transport. Each sample combines one LCD sample (uniform area, pattern independent) and one BSDF
-sample with multiple importance sampling (power heuristic); both directions are evaluated for all
-P patterns the ``lcd`` emitter holds, so P images cost one set of rays.
+transport. Each sample combines one LCD sample (uniform in area, or by the patterns' brightness)
+and one BSDF sample with multiple importance sampling (power heuristic); both directions are
+evaluated for all P patterns the ``lcd`` emitter holds, so P images cost one set of rays.
 
 Parameters:
     hide_emitters    (bool, default true) camera rays that hit the LCD return black.
@@ -22,6 +22,11 @@ Parameters:
                      over cv_blocks x cv_blocks blocks of cells (it must divide the LCD's cell
                      counts). More blocks: a closer control variate, more closed-form work per
                      texel (and H W K^2 3 floats of cached geometry).
+    light_sampling   (string, default "uniform") how :meth:`render_texels` samples the LCD:
+                     "uniform" (area, as the emitter does) or "patterns" (cells by the patterns'
+                     brightness, mixed with a uniform share; :class:`_PatternLight`). Adaptive
+                     patterns are mostly dark with small bright regions, which uniform samples miss.
+    uniform_share    (float, default 0.25) the uniform part of "patterns" sampling, in (0, 1].
     ltc_min_roughness (float, default 0.1) below this roughness the specular lobe is left to
                      Monte Carlo alone: a near-mirror LTC lobe that misses the true one by a
                      fraction of its width would make the residual spikier, not smoother.
@@ -43,10 +48,10 @@ For gradients w.r.t. the maps, BSDF-sampled directions are detached and the BSDF
 (detached sampling), and MIS weights are detached; patterns enter linearly through the emitter's
 ``data`` tensor. The closed-form part is differentiable w.r.t. patterns and maps.
 
-Rejected alternative: sampling the LCD by the patterns' brightness. With the control variate the
-residual is no longer proportional to a cell's radiance (a black cell next to a bright block
-still carries residual), and a pattern-dependent pdf would differ per pattern while all P
-patterns share one sample set.
+Sampling the LCD by the patterns' brightness uses one distribution for all P patterns of a
+material (their mean normalised brightness), because all P share one sample set; the uniform
+share covers what the mixture misses (a black cell next to a bright block still carries control
+variate residual).
 """
 
 from __future__ import annotations
@@ -58,6 +63,7 @@ from .lcd_integrals import ViewFrame, ltc_density
 
 SAMPLERS = ("independent", "stratified")
 CONTROL_VARIATES = ("none", "diffuse", "ltc")
+LIGHT_SAMPLINGS = ("uniform", "patterns")
 
 
 class _LaneSampler:
@@ -178,6 +184,87 @@ class _ControlVariate:
         return out
 
 
+class _PatternLight:
+    """LCD sampling by the patterns' brightness: cell c of material b is chosen with probability
+    ``w_bc = a / C + (1 - a) / P sum_p Y_bpc / sum_c' Y_bpc'`` (Y the cell's emitted radiance
+    summed over RGB, before decay; a pattern that is black everywhere counts as uniform), then a
+    uniform point inside the cell. One distribution for all P patterns of a material, since they
+    share the samples; the uniform share ``a`` keeps every cell reachable, so the estimate stays
+    unbiased for any pattern. The probabilities are detached: patterns still get their gradients
+    through the emitted radiance. Serves ``direct`` in place of the emitter's uniform sampling."""
+
+    def __init__(self, lcd, batch: int, count: int, uniform_share: float, b):
+        self.lcd, self.b = lcd, b
+        C = self.C = lcd.h * lcd.w
+        idx = dr.arange(mi.UInt32, batch * C)
+        mb = idx // C
+        cell = idx - mb * C
+        data = dr.detach(lcd.data.array)
+        acc = mi.Float(0.0)
+        for p in range(count):
+            base = (mb * count + p) * (3 * C) + cell
+            rad = lcd._drive_to_radiance([dr.gather(mi.Float, data, base + k * C) for k in range(3)])
+            y = dr.maximum(rad.x + rad.y + rad.z, 0.0)
+            total = dr.gather(mi.Float, dr.block_sum(y, C), mb)
+            acc += dr.select(total > 0, y / dr.maximum(total, 1e-30), 1.0 / C)
+        self.w = uniform_share / C + (1.0 - uniform_share) / count * acc
+        # One prefix sum over all materials, in double so that a material's cdf does not depend on
+        # the materials before it in the batch (its image must not depend on the batch).
+        w64 = mi.Float64(self.w)
+        cdf = dr.cumsum(w64)
+        start = dr.gather(mi.Float64, cdf, mb * C) - dr.gather(mi.Float64, w64, mb * C)
+        self.cdf = mi.Float(cdf - start)
+        self.total = dr.gather(mi.Float, self.cdf, mb * C + (C - 1))
+        dr.eval(self.w, self.cdf, self.total)
+        T = lcd.to_world()
+        self.to_world = mi.Transform4f(T)
+        eu, ev = T @ mi.ScalarVector3f(2.0, 0.0, 0.0), T @ mi.ScalarVector3f(0.0, 2.0, 0.0)
+        self.area = dr.norm(dr.cross(eu, ev))
+        self.normal = mi.Vector3f(dr.normalize(mi.ScalarVector3f(T @ mi.ScalarNormal3f(0.0, 0.0, 1.0))))
+
+    def _pdf_area(self, cell, active):
+        w = dr.gather(mi.Float, self.w, self.b * self.C + cell, active)
+        t = dr.gather(mi.Float, self.total, self.b, active)
+        return w / dr.maximum(t, 1e-30) * (self.C / self.area)
+
+    def sample_direction(self, it, sample, active=True):
+        C, base = self.C, self.b * self.C
+        target = sample.x * dr.gather(mi.Float, self.total, self.b, active)
+        pos, step = mi.UInt32(0), 1 << (C - 1).bit_length()
+        while step:  # branchless binary search: the number of cells whose inclusive cdf <= target
+            cand = pos + step
+            ok = (cand <= C) & (dr.gather(mi.Float, self.cdf, base + dr.minimum(cand, C) - 1, active) <= target)
+            pos = dr.select(ok, cand, pos)
+            step >>= 1
+        cell = dr.minimum(pos, C - 1)
+        w = dr.gather(mi.Float, self.w, base + cell, active)
+        lo = dr.gather(mi.Float, self.cdf, base + cell, active) - w
+        fu = dr.clip((target - lo) / dr.maximum(w, 1e-30), 0.0, 0.99999994)
+        row, col = cell // self.lcd.w, cell % self.lcd.w
+        uv = mi.Point2f((mi.Float(col) + fu) / self.lcd.w, (mi.Float(row) + sample.y) / self.lcd.h)
+        ds = dr.zeros(mi.DirectionSample3f)
+        ds.p = self.to_world @ mi.Point3f(2.0 * uv.x - 1.0, 2.0 * uv.y - 1.0, 0.0)
+        ds.n = self.normal
+        ds.uv = uv
+        d = ds.p - it.p
+        dist2 = dr.squared_norm(d)
+        ds.dist = dr.sqrt(dist2)
+        ds.d = d / ds.dist
+        cos_emit = -dr.dot(ds.d, ds.n)
+        ok = active & (cos_emit > 0)
+        ds.pdf = dr.select(ok, self._pdf_area(cell, ok) * dist2 / dr.maximum(cos_emit, 1e-12), 0.0)
+        ds.emitter = mi.EmitterPtr(self.lcd)
+        return ds, mi.Color3f(0.0)
+
+    def pdf_direction(self, it, ds, active=True):
+        cos_emit = -dr.dot(ds.d, ds.n)
+        col = dr.clip(mi.Int32(dr.floor(ds.uv.x * self.lcd.w)), 0, self.lcd.w - 1)
+        row = dr.clip(mi.Int32(dr.floor(ds.uv.y * self.lcd.h)), 0, self.lcd.h - 1)
+        cell = mi.UInt32(row * self.lcd.w + col)
+        pdf = self._pdf_area(cell, active) * ds.dist * ds.dist / dr.maximum(cos_emit, 1e-12)
+        return dr.select(active & (cos_emit > 0), pdf, 0.0)
+
+
 class ImportanceIntegrator(mi.SamplingIntegrator):
     """Direct illumination from the ``lcd`` emitter for all its patterns at once (see the module
     docstring for the parameters)."""
@@ -189,6 +276,13 @@ class ImportanceIntegrator(mi.SamplingIntegrator):
         self.control_variate = str(props.get("control_variate", "ltc"))
         self.cv_blocks = int(props.get("cv_blocks", 8))
         self.ltc_min_roughness = float(props.get("ltc_min_roughness", 0.1))
+        self.light_sampling = str(props.get("light_sampling", "uniform"))
+        self.uniform_share = float(props.get("uniform_share", 0.25))
+        if self.light_sampling not in LIGHT_SAMPLINGS:
+            raise ValueError(f"importance integrator: light_sampling must be one of {', '.join(LIGHT_SAMPLINGS)}, "
+                             f"got {self.light_sampling!r}")
+        if not 0.0 < self.uniform_share <= 1.0:
+            raise ValueError(f"importance integrator: uniform_share must lie in (0, 1], got {self.uniform_share}")
         if self.sampler not in SAMPLERS:
             raise ValueError(f"importance integrator: sampler must be one of {', '.join(SAMPLERS)}, "
                              f"got {self.sampler!r}")
@@ -208,18 +302,20 @@ class ImportanceIntegrator(mi.SamplingIntegrator):
             raise ValueError(f"importance integrator: the scene needs exactly one 'lcd' emitter, found {len(ems)}")
         return ems[0]
 
-    def direct(self, scene, sampler, si, active, first=0, count=None, cv=None) -> list:
+    def direct(self, scene, sampler, si, active, first=0, count=None, cv=None, light=None) -> list:
         """Outgoing radiance towards ``si.wi`` for patterns first .. first + count - 1 of the
         ``lcd`` emitter (default: all): a list of Color3f, all from the same light samples. With a
-        control variate ``cv``, only the residual f L e - g (the caller adds g's integral)."""
+        control variate ``cv``, only the residual f L e - g (the caller adds g's integral).
+        ``light`` samples the LCD (default: the emitter's uniform sampling)."""
         lcd = self.lcd(scene)
+        light = lcd if light is None else light
         bsdf = si.bsdf()
         ctx = mi.BSDFContext()
         P = lcd.pattern_count if count is None else count
         out = [mi.Color3f(0.0) for _ in range(P)]
 
         # Light sample (uniform on the LCD, the same for all patterns).
-        ds, _ = lcd.sample_direction(si, sampler.next_2d(active), active)
+        ds, _ = light.sample_direction(si, sampler.next_2d(active), active)
         em_ok = active & (ds.pdf > 0)
         wo = si.to_local(ds.d)
         f, bsdf_pdf = bsdf.eval_pdf(ctx, si, wo, em_ok)
@@ -239,7 +335,7 @@ class ImportanceIntegrator(mi.SamplingIntegrator):
         hit = bs_ok & si_l.is_valid() & (si_l.emitter(scene) == mi.EmitterPtr(lcd))
         f_b = bsdf.eval(ctx, si, dr.detach(bs.wo), hit)
         ds_l = mi.DirectionSample3f(scene, si_l, si)
-        em_pdf = lcd.pdf_direction(si, ds_l, hit)
+        em_pdf = light.pdf_direction(si, ds_l, hit)
         # isfinite guard as in Mitsuba's own integrators: a degenerate pdf must not poison a lane.
         w_bs = dr.detach(_power_heuristic(bs.pdf, em_pdf))
         w_bs = dr.select(dr.isfinite(w_bs), w_bs, 0.0)
@@ -320,7 +416,8 @@ class ImportanceIntegrator(mi.SamplingIntegrator):
         if control is not None:
             n, _, _, _ = shape.bsdf().maps(si, ok)
             cv = _ControlVariate(lcd, control[0], control[1], self.cv_blocks, b, texel, H * W, P, n, si.wi)
-        values = self.direct(scene, sampler, si, ok, first=b * P, count=P, cv=cv)
+        light = _PatternLight(lcd, batch, P, self.uniform_share, b) if self.light_sampling == "patterns" else None
+        values = self.direct(scene, sampler, si, ok, first=b * P, count=P, cv=cv, light=light)
         # One kernel for all 3P channels; reduced one by one they would each re-trace the paths.
         dr.eval(values)
         chans = [dr.block_sum(c, spp) / spp for val in values for c in (val.x, val.y, val.z)]
@@ -335,4 +432,4 @@ class ImportanceIntegrator(mi.SamplingIntegrator):
 
     def to_string(self):
         return (f"ImportanceIntegrator[sampler={self.sampler}, control_variate={self.control_variate}, "
-                f"cv_blocks={self.cv_blocks}]")
+                f"cv_blocks={self.cv_blocks}, light_sampling={self.light_sampling}]")

@@ -36,6 +36,8 @@ OPTIONS = {
     "ltc-cv": {},
     "ltc-cv-independent": {"sampler": "independent", "control_variate": "ltc"},
     "ltc-cv-4-blocks": {"cv_blocks": 4},
+    "pattern-light": {"light_sampling": "patterns"},
+    "plain-pattern-light": {"sampler": "independent", "control_variate": "none", "light_sampling": "patterns"},
 }
 DISPLAY = {
     "plain-display": "",
@@ -88,7 +90,7 @@ def test_every_option_agrees_with_the_reference_with_normal_maps_and_every_displ
     assert _rel_rmse(ms.render(m, p, rig, method="mitsuba", spp=16384), ms.render(m, p, rig)) < 0.01
 
 
-@pytest.mark.parametrize("option", [o for o in OPTIONS if o != "plain"])
+@pytest.mark.parametrize("option", [o for o in OPTIONS if not o.startswith("plain")])
 def test_variance_reduced_options_are_within_2_percent_at_1024_spp(rigs, option):
     rig = rigs[(option, "plain-display")]
     m = textured_material(16, seed=3, roughness=(0.1, 0.9))
@@ -130,7 +132,7 @@ def test_the_default_estimator_is_several_times_less_noisy_at_4_spp(rigs):
 
 # ---- gradients -----------------------------------------------------------------------------
 
-@pytest.mark.parametrize("option", ["stratified", "diffuse-cv", "ltc-cv"])
+@pytest.mark.parametrize("option", ["stratified", "diffuse-cv", "ltc-cv", "pattern-light"])
 def test_pattern_gradient_matches_finite_differences_and_the_reference(rigs, option):
     rig = rigs[(option, "decay")]
     m = textured_material(8, roughness=(0.2, 0.5))
@@ -148,9 +150,10 @@ def test_pattern_gradient_matches_finite_differences_and_the_reference(rigs, opt
         grads.append(g[cell].item())
     e = torch.zeros_like(p)
     e[cell] = 0.1
-    with torch.no_grad():  # same seed, same samples: the estimate is linear in the pattern
-        fd = (loss(p + e, "mitsuba", spp=2048, seed=3) - loss(p - e, "mitsuba", spp=2048, seed=3)) / 0.2
-    assert abs(grads[-1] - fd.item()) <= 1e-3 * abs(fd.item()) + 1e-7
+    if OPTIONS[option].get("light_sampling") != "patterns":  # else the samples move with the pattern
+        with torch.no_grad():  # same seed, same samples: the estimate is linear in the pattern
+            fd = (loss(p + e, "mitsuba", spp=2048, seed=3) - loss(p - e, "mitsuba", spp=2048, seed=3)) / 0.2
+        assert abs(grads[-1] - fd.item()) <= 1e-3 * abs(fd.item()) + 1e-7
     q = p.clone().requires_grad_(True)
     (g_ref,) = torch.autograd.grad(loss(q, "reference"), q)
     mean, sem = np.mean(grads), np.std(grads, ddof=1) / 2
@@ -227,15 +230,19 @@ def test_extremes_give_finite_values_and_gradients(rigs, option, case):
 
 # ---- one pass, batches, no recompilation -----------------------------------------------------
 
-@pytest.mark.parametrize("option", ["ltc-cv", "diffuse-cv"])
+@pytest.mark.parametrize("option", ["ltc-cv", "diffuse-cv", "pattern-light"])
 def test_all_patterns_and_materials_in_one_pass_equal_separate_renders(rigs, option):
     rig = rigs[(option, "decay")]
     m = ms.SVBRDF.cat([textured_material(8, seed=1), textured_material(8, seed=2)])
     p = torch.stack([pt.random(n=3, seed=1), pt.random(n=3, seed=2)])
     both = ms.render(m, p, rig, method="mitsuba", spp=8, seed=3)
-    for k in range(3):  # material 1 alone uses seed + 1
-        alone = ms.render(m[1], p[1, k:k + 1], rig, method="mitsuba", spp=8, seed=4)
-        torch.testing.assert_close(both[1, k], alone[0, 0], rtol=1e-4, atol=1e-6)
+    alone = ms.render(m[1], p[1], rig, method="mitsuba", spp=8, seed=4)  # material 1 alone uses seed + 1
+    torch.testing.assert_close(both[1], alone[0], rtol=1e-4, atol=1e-6)
+    if OPTIONS[option].get("light_sampling") == "patterns":
+        return  # the light distribution is the mean over the patterns rendered together
+    for k in range(3):
+        one = ms.render(m[1], p[1, k:k + 1], rig, method="mitsuba", spp=8, seed=4)
+        torch.testing.assert_close(both[1, k], one[0, 0], rtol=1e-4, atol=1e-6)
 
 
 @pytest.mark.parametrize("option", ["ltc-cv", "plain"])
@@ -288,7 +295,9 @@ def test_diffuse_control_variate_is_off_where_the_lcd_crosses_the_horizon(rig):
 
 @pytest.mark.parametrize("options,match", [({"sampler": "sobol"}, "sampler"),
                                            ({"control_variate": "pca"}, "control_variate"),
-                                           ({"cv_blocks": 0}, "cv_blocks")])
+                                           ({"cv_blocks": 0}, "cv_blocks"),
+                                           ({"light_sampling": "bright"}, "light_sampling"),
+                                           ({"uniform_share": 0.0}, "uniform_share")])
 def test_bad_integrator_options_are_clear_errors(tmp_path, options, match):
     path = scene_with(tmp_path / "bad.xml", options)
     with pytest.raises(SceneError, match=match):

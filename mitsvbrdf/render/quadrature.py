@@ -157,10 +157,18 @@ def lobe_share(d: LocalDirections, omega: Tensor, window: float) -> Tensor:
 
     For rough lobes l >> spacing everywhere and w_H ~ 0; for near-mirror lobes the lobe rule owns
     the unresolvable core and the light rule the smooth tails.
+
+    It is evaluated as ``s^2 / (s^2 + l^4)``, s = window^2 omega_h, which is the same number but
+    has no division by ``omega``: directions that miss the LCD have omega = 0, and the quotient
+    form overflowed there (1 / clamp(0) squared), which made the backward pass NaN although the
+    forward value was masked out. The denominator is at least alpha^4 >= ALPHA_MIN^4, so the
+    gradient is finite everywhere, and exactly 0 where omega = 0.
     """
     omega_h = omega / (4.0 * d.o_dot_h.clamp_min(1e-6))
-    ratio = (d.alpha * d.alpha + d.sin2_h) / (window * window * omega_h).clamp_min(1e-30)
-    return 1.0 / (1.0 + ratio * ratio)
+    s = window * window * omega_h
+    l2 = d.alpha * d.alpha + d.sin2_h
+    s2 = s * s
+    return s2 / (s2 + l2 * l2)
 
 
 class _Frame:

@@ -30,6 +30,8 @@ from pathlib import Path
 import numpy as np
 import torch
 
+from .checks import check_float, check_int, check_out_dir, check_out_file, check_seed
+
 
 def _resize_svbrdf(svbrdf, size: int):
     """Area-resample the maps to size x size (normals renormalised)."""
@@ -62,16 +64,22 @@ def cmd_simulate(args: argparse.Namespace) -> int:
     from .rig import Rig
     from .svbrdf import SVBRDF
 
+    # Every value is checked, and every input read, before rendering; the folder is made last.
+    if args.resolution is not None:
+        check_int("--resolution", args.resolution, 1)
+    check_int("--spp", args.spp, 1)
+    check_seed("--seed", args.seed)
+    check_int("--cell-order", args.cell_order, 1)
+    check_int("--lobe-grid", args.lobe_grid, 0)
+    out = check_out_dir("--out", args.out)
     rig = Rig.from_scene(args.scene)
     svbrdf = SVBRDF.load(args.material)
-    if args.resolution:
+    if args.resolution is not None:
         svbrdf = _resize_svbrdf(svbrdf, args.resolution)
     h, w = rig.lcd_cells
     patterns = load_patterns(args.patterns, h, w)
     rig.check_patterns(patterns)
     settings = QuadratureSettings(cell_order=args.cell_order, lobe_grid=args.lobe_grid)
-    out = Path(args.out)
-    out.mkdir(parents=True, exist_ok=True)
     H, W = svbrdf.resolution
     started = time.time()
     if args.method == "mitsuba":
@@ -86,6 +94,7 @@ def cmd_simulate(args: argparse.Namespace) -> int:
             images = render(svbrdf, patterns, rig, method=args.method, settings=settings, progress=bar.update)[0]
     render_s = time.time() - started
     peak = float(np.percentile(images.numpy(), 99.5)) or 1.0
+    out.mkdir(parents=True, exist_ok=True)
     written = []
     for k, img in enumerate(images):
         arr = img.permute(1, 2, 0).numpy()
@@ -121,6 +130,12 @@ def cmd_materials_preview(args: argparse.Namespace) -> int:
     from .patterns import load_patterns
     from .rig import Rig
 
+    for name, value, low in (("--n", args.n, 1), ("--size", args.size, 1), ("--tile", args.tile, 1),
+                             ("--columns", args.columns, 1), ("--render-size", args.render_size, 0),
+                             ("--start", args.start, 0)):
+        check_int(name, value, low)
+    check_float("--bump", args.bump, 0.0)
+    check_out_file("--out", args.out)
     families = [f.strip() for f in args.families.split(",") if f.strip()] if args.families else None
     started = time.time()
     svbrdf = procedural.generate(args.n, size=args.size, seed=args.seed, families=families, start=args.start,
@@ -144,7 +159,12 @@ def cmd_materials_preview(args: argparse.Namespace) -> int:
 
 def cmd_demo(args: argparse.Namespace) -> int:
     from .demo import DEFAULT_MATERIAL, DEFAULT_NETWORKS, run_demo
+    from .pipeline import SIMULATE_SEED_MAX
 
+    check_int("--resolution", args.resolution, 1)
+    check_int("--spp", args.spp, 1)
+    check_int("--seed", args.seed, 0, SIMULATE_SEED_MAX)
+    check_out_dir("--out", args.out)
     rec = run_demo(args.out, material=args.material or DEFAULT_MATERIAL, networks=args.networks or DEFAULT_NETWORKS,
                    scene=args.scene, resolution=args.resolution, spp=args.spp, seed=args.seed,
                    progress=not args.quiet)
@@ -200,8 +220,15 @@ def cmd_evaluate(args: argparse.Namespace) -> int:
     from .evaluation import adaptive_method, baseline_method, evaluate
     from .rig import Rig
 
+    from .pipeline import SIMULATE_SEED_MAX, check_resolution, size_multiple
+
     if args.figures is not None and args.figures < 0:  # before the networks and materials load
         raise MitsvbrdfError(f"--figures must be >= 0, got {args.figures}")
+    check_int("--size", args.size, 1)
+    check_int("--n", args.n, 0)
+    check_int("--spp", args.spp, 1)
+    check_int("--seed", args.seed, 0, SIMULATE_SEED_MAX)
+    check_out_dir("--out", args.out)
     rig = Rig.from_scene(args.scene)
     runs = [("adaptive", args.model, "initializer")]
     runs += [(*_named(s, "--adaptive"), "initializer") for s in args.adaptive or []]
@@ -215,6 +242,8 @@ def cmd_evaluate(args: argparse.Namespace) -> int:
         if name in methods:
             raise MitsvbrdfError(f"two methods are named {name!r}")
         methods[name] = baseline_method(path, rig, spp=args.spp, seed=args.seed)
+    # The networks decide which sizes they take: check before any material is loaded or rendered.
+    check_resolution(args.size, size_multiple(*(getattr(m, "networks", torch.nn.Module()) for m in methods.values())), "--size")
     materials = load_materials(args.data, args.size, args.n)
     evaluate(methods, materials, rig, args.out, max_figures=args.figures, progress=not args.quiet)
     print((Path(args.out) / "summary.md").read_text())
@@ -227,6 +256,11 @@ def cmd_patterns_pca(args: argparse.Namespace) -> int:
     from .patterns import pca_patterns
     from .rig import Rig
 
+    check_int("--count", args.count, 1)
+    check_int("--n", args.n, args.count)  # the PCA of `count` patterns needs that many L_pdf maps
+    check_int("--size", args.size, 1)
+    check_int("--stride", args.stride, 1, args.size)
+    out = check_out_file("--out", args.out)
     rig = Rig.from_scene(args.scene)
     lp = []
     for start in range(0, args.n, 16):
@@ -234,7 +268,6 @@ def cmd_patterns_pca(args: argparse.Namespace) -> int:
         with torch.no_grad():
             lp.append(importance(mats.normal, mats.roughness, rig, texel_stride=args.stride))
     pats = pca_patterns(torch.cat(lp), n=args.count)
-    out = Path(args.out)
     out.parent.mkdir(parents=True, exist_ok=True)
     np.save(out, pats.numpy())
     print(f"wrote {out}: {args.count} PCA patterns from the L_pdf of {args.n} training materials (seed {args.seed})")
@@ -248,6 +281,7 @@ def cmd_train(args: argparse.Namespace) -> int:
     if args.out:
         overrides.append(f'out="{args.out}"')
     cfg = load_config(args.config, overrides)
+    check_out_dir("--out" if args.out else f"{args.config}: out", cfg.out)
     last = train(cfg, resume=args.resume, progress=not args.quiet)
     if last:
         print("last logged: " + ", ".join(f"{k}={v:.4g}" for k, v in last.items() if isinstance(v, float)))
@@ -265,7 +299,7 @@ def build_parser() -> argparse.ArgumentParser:
                    help="pattern family (uniform, monograd, colorgrad, step_edges, random) or a "
                         ".npy/.pt/PNG file")
     s.add_argument("--out", required=True, help="output folder")
-    s.add_argument("--resolution", type=int, default=0, help="resample the maps to N x N first")
+    s.add_argument("--resolution", type=int, default=None, help="resample the maps to N x N first (N >= 1)")
     s.add_argument("--method", default="mitsuba", choices=["mitsuba", "reference"],
                    help="mitsuba: path-traced through the scene's own plugins (default); reference: "
                         "the deterministic torch quadrature")

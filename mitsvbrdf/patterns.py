@@ -101,6 +101,8 @@ def pca_patterns(lpdf: Tensor, n: int = 5) -> Tensor:
     maps; each is mapped affinely to [0, 1] (a component's sign is arbitrary, so it is fixed to
     make the brightest cell positive).
     """
+    if isinstance(n, bool) or not isinstance(n, int) or n < 1:
+        raise PatternError(f"PCA patterns: the count must be a whole number >= 1, got {n!r}")
     x = lpdf.reshape(lpdf.shape[0], -1).double()
     if x.shape[0] < n:
         raise PatternError(f"PCA of {n} patterns needs at least {n} L_pdf maps, got {x.shape[0]}")
@@ -172,4 +174,6 @@ def load_patterns(name_or_path: str | Path, h: int = 32, w: int = 32) -> Tensor:
         t = t.unsqueeze(0)
     if t.ndim != 4 or tuple(t.shape[1:]) != (3, h, w):
         raise PatternError(f"{path}: patterns must be (P, 3, {h}, {w}), got {tuple(t.shape)}")
+    if t.shape[0] == 0:
+        raise PatternError(f"{path}: the file holds no patterns (shape {tuple(t.shape)}); P must be >= 1")
     return t.contiguous()

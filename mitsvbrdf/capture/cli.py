@@ -14,12 +14,32 @@ from pathlib import Path
 import numpy as np
 
 
-def _floats(text: str, what: str) -> tuple[float, ...]:
+def exposure_times(text: str, what: str = "--exposures", at_least: int = 1) -> tuple[float, ...]:
+    """Comma-separated exposure times in seconds: finite, > 0, and ``at_least`` distinct ones."""
+    from ..errors import MitsvbrdfError
+
     try:
         vals = tuple(float(v) for v in text.split(","))
     except ValueError:
-        raise argparse.ArgumentTypeError(f"{what} must be comma-separated numbers, got {text!r}") from None
+        raise MitsvbrdfError(f"{what} must be comma-separated seconds, e.g. 0.01,0.1,1; got {text!r}") from None
+    bad = [v for v in vals if not (np.isfinite(v) and v > 0)]
+    if bad:
+        raise MitsvbrdfError(f"{what} must all be positive, finite seconds; got {text!r}")
+    if len(set(vals)) < at_least:
+        raise MitsvbrdfError(f"{what} needs at least {at_least} different exposure times here, got {text!r}")
     return vals
+
+
+def check_device_options(args, exposures_needed: int = 1) -> tuple[float, ...]:
+    """Check the numbers of the device options before any device is opened; returns the exposures."""
+    from ..checks import check_float, check_int, check_seed
+
+    check_int("--spp", args.spp, 1)
+    check_seed("--seed", args.seed)
+    check_float("--gain", args.gain, 0.0, low_open=True)
+    check_int("--resolution", args.resolution, 1)
+    check_float("--camera-timeout", args.camera_timeout, 0.0, low_open=True)
+    return exposure_times(args.exposures, at_least=exposures_needed)
 
 
 def add_device_options(p: argparse.ArgumentParser) -> None:
@@ -77,11 +97,12 @@ def _bracket(args, rig, display, cam, response, matrix, raw_only: bool = False):
     if not cam.rectified:
         model = CameraModel.from_rig(rig)
         rectify = lambda frame: model.rectify(frame, rig.sample_size, args.resolution)  # noqa: E731
-    return BracketCapture(display, cam, _floats(args.exposures, "--exposures"), response=response,
+    return BracketCapture(display, cam, exposure_times(args.exposures), response=response,
                           rectify=rectify, color_matrix=matrix, raw_only=raw_only)
 
 
 def cmd_capture(args: argparse.Namespace) -> int:
+    from ..checks import check_out_dir
     from ..cli import _resize_svbrdf
     from ..demo import DEFAULT_NETWORKS, load_pipeline
     from ..rig import Rig
@@ -90,8 +111,12 @@ def cmd_capture(args: argparse.Namespace) -> int:
     from .devices import DeviceError
     from .session import CaptureSession
 
+    check_device_options(args)
+    check_out_dir("--out", args.out)
     rig = Rig.from_scene(args.scene)
     networks = args.networks or str(DEFAULT_NETWORKS)
+    pipeline = load_pipeline(networks, rig)
+    pipeline.check_resolution(args.resolution, "--resolution")  # before the first frame
     material = _resize_svbrdf(SVBRDF.load(args.simulate), args.resolution) if args.simulate else None
     display, cam, response, matrix, ctl = _devices(args, rig, material)
     try:
@@ -100,7 +125,7 @@ def cmd_capture(args: argparse.Namespace) -> int:
                     "networks": str(Path(networks).resolve()), "resolution": args.resolution}
         if args.simulate:
             settings.update(simulate=str(Path(args.simulate).resolve()), spp=args.spp, seed=args.seed)
-        session = CaptureSession(args.out, load_pipeline(networks, rig), capture, settings)
+        session = CaptureSession(args.out, pipeline, capture, settings)
         session.run(resume=args.resume, progress=not args.quiet)
     except ControllerError as e:
         raise DeviceError(f"{e}; every frame so far is in {args.out}: fix the link and rerun with --resume") from e
@@ -112,12 +137,17 @@ def cmd_capture(args: argparse.Namespace) -> int:
 
 
 def cmd_calibrate(args: argparse.Namespace) -> int:
+    from ..checks import check_float, check_out_file
     from ..rig import Rig
     from . import calibrate as cal
     from .display import write_display_model
     from .geometry import write_lcd_pose
     from .scene_file import write_camera_calibration
 
+    check_out_file("--out", args.out)
+    if args.step != "intrinsics":
+        check_device_options(args, exposures_needed=2 if args.step == "response" else 1)
+        check_float("--albedo", args.albedo, 0.0, 1.0, low_open=True)
     scene = args.scene or str(Path(__file__).resolve().parents[2] / "scenes" / "lcd_rig.xml")
     args.scene = scene
     rig = Rig.from_scene(scene)

@@ -93,13 +93,13 @@ def cmd_simulate(args: argparse.Namespace) -> int:
                                    disable=args.quiet) as bar:
             images = render(svbrdf, patterns, rig, method=args.method, settings=settings, progress=bar.update)[0]
     render_s = time.time() - started
-    peak = float(np.percentile(images.numpy(), 99.5)) or 1.0
+    peak = float(np.percentile(images.numpy(), 99.5))  # recorded as measured: 0 for a black capture
     out.mkdir(parents=True, exist_ok=True)
     written = []
     for k, img in enumerate(images):
         arr = img.permute(1, 2, 0).numpy()
         imageio.write_exr(out / f"image_{k:02d}.exr", arr)
-        imageio.write_png(out / f"image_{k:02d}.png", imageio.tonemap_preview(arr, exposure=1.0 / peak))
+        imageio.write_png(out / f"image_{k:02d}.png", imageio.tonemap_preview(arr, exposure=1.0 / (peak or 1.0)))
         written += [f"image_{k:02d}.exr", f"image_{k:02d}.png"]
     imageio.write_png(out / "patterns.png", _pattern_strip(patterns))
     with torch.no_grad():

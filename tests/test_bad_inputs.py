@@ -137,3 +137,12 @@ def test_mitsuba_render_checks_its_numbers_before_loading_the_scene(rig, kwargs,
 def test_pca_of_no_patterns_is_refused():
     with pytest.raises(PatternError, match="count"):
         pt.pca_patterns(torch.rand(6, 1, 32, 32), n=0)
+
+
+def test_simulation_record_reports_the_measured_radiance_of_a_black_capture(tmp_path):
+    # It said 1.0 (the tone-mapping fallback) for black images.
+    np.save(tmp_path / "black.npy", np.zeros((1, 3, 32, 32), np.float32))
+    assert main(["simulate", SCENE, "--material", MATERIAL, "--patterns", str(tmp_path / "black.npy"), "--method",
+                 "reference", "--resolution", "4", "--out", str(tmp_path / "out"), "--quiet"]) == 0
+    import json
+    assert json.loads((tmp_path / "out" / "simulation.json").read_text())["radiance_p99_5"] == 0.0

@@ -7,7 +7,7 @@ Commands:
              [--adaptive NAME=NETWORKS ...] [--uniform-lpdf NAME=NETWORKS ...]
         Map and re-rendering metrics of the adaptive method, its variants and the baselines;
         tables, figures, HTML.
-    train CONFIG [--resume] [--set key=value ...] [--out DIR]
+    train CONFIG [--resume | --overwrite] [--set key=value ...] [--out DIR]
         Train one stage of the method (init, stage1, stage2, finetune, fixed) from a TOML config.
     capture --out SESSION_DIR [--scene S] [--resume] (--simulate MATERIAL | --camera-folder DIR ...)
         The adaptive acquisition at the bench, every frame on disk as it arrives (docs/capture.md).
@@ -275,17 +275,26 @@ def cmd_patterns_pca(args: argparse.Namespace) -> int:
 
 
 def cmd_train(args: argparse.Namespace) -> int:
-    from .training import load_config, train
+    from .training import TrainingInterrupted, load_config, train
+    from .training.trainer import RUN_FILES
 
     overrides = list(args.set or [])
     if args.out:
         overrides.append(f'out="{args.out}"')
     cfg = load_config(args.config, overrides)
     check_out_dir("--out" if args.out else f"{args.config}: out", cfg.out)
-    last = train(cfg, resume=args.resume, progress=not args.quiet)
+
+    def written() -> str:  # only what is on disk now
+        return ", ".join(f for f in ("config.json", *RUN_FILES) if (Path(cfg.out) / f).is_file()) or "nothing"
+
+    try:
+        last = train(cfg, resume=args.resume, overwrite=args.overwrite, progress=not args.quiet)
+    except TrainingInterrupted as e:
+        print(f"\nmitsvbrdf: {e}; files in {cfg.out}: {written()}", file=sys.stderr)
+        return 128 + e.signal
     if last:
         print("last logged: " + ", ".join(f"{k}={v:.4g}" for k, v in last.items() if isinstance(v, float)))
-    print(f"outputs in {cfg.out}: checkpoint.pt, metrics.csv, loss.png, networks.pt")
+    print(f"outputs in {cfg.out}: {written()}")
     return 0
 
 
@@ -340,7 +349,10 @@ def build_parser() -> argparse.ArgumentParser:
     pc.set_defaults(func=cmd_patterns_pca)
     t = sub.add_parser("train", help="train a stage from a TOML config (see train/ and docs/training.md)")
     t.add_argument("config", help="config file, e.g. train/stage1-small.toml")
-    t.add_argument("--resume", action="store_true", help="continue from OUT/checkpoint.pt")
+    t.add_argument("--resume", action="store_true", help="continue from OUT/checkpoint.pt (the settings must "
+                   "match, except those listed in docs/training.md, e.g. more train.steps)")
+    t.add_argument("--overwrite", action="store_true", help="start again in a folder that holds a run (its "
+                   "checkpoint, networks, metrics and plot are removed)")
     t.add_argument("--set", action="append", metavar="KEY=VALUE", help="override a config key, e.g. train.steps=10")
     t.add_argument("--out", default="", help="output folder (overrides the config's out)")
     t.add_argument("--quiet", action="store_true", help="no progress bar")

@@ -132,6 +132,8 @@ def cmd_capture(args: argparse.Namespace) -> int:
     finally:
         if ctl is not None:
             ctl.close()
+    if session.recaptured:
+        print(f"redone because the recorded files were missing or changed: {', '.join(session.recaptured)}")
     print(f"session complete in {args.out}: maps.png, maps.exr, raw/, radiance/, session.json")
     return 0
 

@@ -225,7 +225,7 @@ def cmd_evaluate(args: argparse.Namespace) -> int:
     if args.figures is not None and args.figures < 0:  # before the networks and materials load
         raise MitsvbrdfError(f"--figures must be >= 0, got {args.figures}")
     check_int("--size", args.size, 1)
-    check_int("--n", args.n, 0)
+    check_int("--n", args.n, 1 if args.data == "procedural" else 0)  # 0: every material of a folder
     check_int("--spp", args.spp, 1)
     check_int("--seed", args.seed, 0, SIMULATE_SEED_MAX)
     check_out_dir("--out", args.out)

@@ -108,19 +108,21 @@ def evaluate(methods: dict[str, Method], materials: Iterable[SVBRDF], rig: Rig, 
     ``max_figures`` limits the figures to the first materials (they are large: one row of images
     per method).
 
-    Returns the per-material rows. Raises ValueError for an empty material set.
+    Returns the per-material rows. Raises MaterialError (a ValueError) for an empty material set.
     """
     from tqdm import tqdm
 
+    from .errors import MaterialError
+
+    materials = list(materials)
+    if not materials:  # before the folder is made
+        raise MaterialError("no materials to evaluate")
     out = Path(out_dir)
     (out / "figures").mkdir(parents=True, exist_ok=True)
     relight = relight or Relighting.make(rig)
     lp, lp_note = lpips_model()
     rows: list[dict] = []
     figs: list[tuple[str, str]] = []
-    materials = list(materials)
-    if not materials:
-        raise ValueError("no materials to evaluate")
     bar = tqdm(total=len(materials) * len(methods), desc="evaluate", disable=not progress)
     seen: set[str] = set()
     for i, gt in enumerate(materials):

@@ -24,8 +24,8 @@ MATERIAL = str(ROOT / "examples" / "materials" / "artificial_0.png")
 NETWORKS = str(ROOT / "mitsvbrdf" / "weights" / "networks.pt")
 
 
-def simulate(*extra):
-    return ["simulate", SCENE, "--material", MATERIAL, "--out", "out", "--quiet", "--resolution", "8", *extra]
+def simulate(*extra, scene=SCENE):
+    return ["simulate", scene, "--material", MATERIAL, "--out", "out", "--quiet", "--resolution", "8", *extra]
 
 
 def capture(*extra):
@@ -49,6 +49,20 @@ def _a_folder(tmp):
     (tmp / "cal.xml").mkdir()
 
 
+def _scene(old, new):
+    """A copy of the default scene with one edit, as rig.xml."""
+    def make(tmp):
+        text = Path(SCENE).read_text()
+        assert old in text
+        (tmp / "rig.xml").write_text(text.replace(old, new, 1))
+    return make
+
+
+ZERO_LCD = _scene('<scale x="0.045" y="0.045"/>', '<scale x="0" y="0"/>')
+DARK_LCD = _scene('<float name="intensity" value="1.0"/>', '<float name="intensity" value="0"/>')
+NEGATIVE_LCD = _scene('<float name="intensity" value="1.0"/>', '<float name="intensity" value="-1"/>')
+
+
 # (id, argv, what the message names, a function making the case's inputs in the folder)
 CASES = [
     ("simulate-resolution-0", simulate("--resolution", "0"), "--resolution", None),
@@ -61,6 +75,11 @@ CASES = [
     ("simulate-out-is-a-file", simulate("--out", "afile"), "is a file", _a_file),
     ("simulate-out-under-a-file", simulate("--out", "afile/sub"), "which is a file", _a_file),
     ("simulate-empty-pattern-file", simulate("--patterns", "empty.npy"), "no patterns", _empty_patterns),
+    ("simulate-zero-size-lcd", simulate(scene="rig.xml"), "positive size", ZERO_LCD),
+    ("simulate-zero-intensity", simulate(scene="rig.xml"), "intensity", DARK_LCD),
+    ("simulate-negative-intensity", simulate(scene="rig.xml"), "intensity", NEGATIVE_LCD),
+    ("demo-zero-size-lcd", ["demo", "--scene", "rig.xml", "--out", "demo", "--quiet"], "positive size", ZERO_LCD),
+    ("calibrate-display-zero-size-lcd", calibrate("display", "--scene", "rig.xml"), "positive size", ZERO_LCD),
     ("train-out-is-a-file", ["train", str(ROOT / "train" / "init-small.toml"), "--out", "afile", "--quiet"],
      "is a file", _a_file),
     ("train-out-under-a-file", ["train", str(ROOT / "train" / "init-small.toml"), "--out", "afile/run", "--quiet"],
@@ -68,6 +87,8 @@ CASES = [
     ("evaluate-size-not-a-multiple", ["evaluate", "--model", NETWORKS, "--size", "20", "--n", "1", "--out", "ev",
                                       "--quiet"], "multiple of 8", None),
     ("evaluate-size-0", ["evaluate", "--model", NETWORKS, "--size", "0", "--out", "ev", "--quiet"], "--size", None),
+    ("evaluate-no-procedural-materials", ["evaluate", "--model", NETWORKS, "--n", "0", "--out", "ev", "--quiet"],
+     "--n", None),
     ("demo-resolution-not-a-multiple", ["demo", "--resolution", "20", "--out", "demo", "--quiet"], "multiple of 8",
      None),
     ("demo-spp-0", ["demo", "--spp", "0", "--out", "demo", "--quiet"], "--spp", None),
@@ -83,7 +104,9 @@ CASES = [
     ("capture-resolution-not-a-multiple", capture("--resolution", "20"), "multiple of 8", None),
     ("calibrate-response-one-exposure", calibrate("response", "--exposures", "0.5"), "at least 2", None),
     ("calibrate-response-one-exposure-twice", calibrate("response", "--exposures", "0.5,0.5"), "at least 2", None),
-    ("calibrate-out-is-a-folder", calibrate("display"), "is a folder", _a_folder),
+    ("calibrate-response-narrow-bracket", calibrate("response", "--exposures", "0.5,0.6"), "extend the exposures",
+     None),
+    ("calibrate-out-is-a-folder", calibrate("response", "--exposures", "0.1,1"), "is a folder", _a_folder),
     ("calibrate-albedo-0", calibrate("display", "--albedo", "0"), "--albedo", None),
 ]
 

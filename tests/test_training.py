@@ -291,6 +291,18 @@ def test_resume_refuses_a_truncated_checkpoint_in_one_line(tmp_path):
     assert "\n" not in str(e.value)
 
 
+def test_resume_from_tensors_that_do_not_fit_the_networks_is_one_line(tmp_path):
+    # Same settings, other shapes (a checkpoint from another version of a network): 160 lines of
+    # load_state_dict before.
+    cfg = _init_run(tmp_path)
+    ck = torch.load(tmp_path / "checkpoint.pt", weights_only=True)
+    ck["stage"] = {k: torch.zeros(*v.shape[:-1], v.shape[-1] + 1) if v.ndim else v for k, v in ck["stage"].items()}
+    torch.save(ck, tmp_path / "checkpoint.pt")
+    with pytest.raises(TrainingError, match="does not fit these networks") as e:
+        Trainer(cfg, resume=True, progress=False)
+    assert "\n" not in str(e.value) and "more" in str(e.value)
+
+
 class _Payload:
     """Unpickling this calls Path.touch(marker): code that runs when a pickle is read."""
 

@@ -8,6 +8,7 @@ anything or creates a folder.
 from __future__ import annotations
 
 import math
+import numbers
 from pathlib import Path
 
 from .errors import MitsvbrdfError
@@ -18,11 +19,12 @@ SEED_MAX = 2 ** 32 - 1
 
 def check_int(name: str, value: object, low: int | None = None, high: int | None = None) -> int:
     """``value`` as an int within [low, high] (either bound may be None)."""
-    if isinstance(value, bool) or not isinstance(value, int):
-        if isinstance(value, float) and value.is_integer():
-            value = int(value)
-        else:
-            raise MitsvbrdfError(f"{name} must be a whole number, got {value!r}")
+    if isinstance(value, numbers.Integral) and not isinstance(value, bool):  # also numpy integers
+        value = int(value)
+    elif isinstance(value, float) and value.is_integer():
+        value = int(value)
+    else:
+        raise MitsvbrdfError(f"{name} must be a whole number, got {value!r}")
     if low is not None and value < low or high is not None and value > high:
         raise MitsvbrdfError(f"{name} must be {_range(low, high)}, got {value}")
     return value

@@ -218,9 +218,8 @@ def cmd_evaluate(args: argparse.Namespace) -> int:
     from .demo import load_pipeline
     from .errors import MitsvbrdfError
     from .evaluation import adaptive_method, baseline_method, evaluate
-    from .rig import Rig
-
     from .pipeline import SIMULATE_SEED_MAX, check_resolution, size_multiple
+    from .rig import Rig
 
     if args.figures is not None and args.figures < 0:  # before the networks and materials load
         raise MitsvbrdfError(f"--figures must be >= 0, got {args.figures}")
@@ -243,7 +242,8 @@ def cmd_evaluate(args: argparse.Namespace) -> int:
             raise MitsvbrdfError(f"two methods are named {name!r}")
         methods[name] = baseline_method(path, rig, spp=args.spp, seed=args.seed)
     # The networks decide which sizes they take: check before any material is loaded or rendered.
-    check_resolution(args.size, size_multiple(*(getattr(m, "networks", torch.nn.Module()) for m in methods.values())), "--size")
+    nets = [getattr(m, "networks", torch.nn.Module()) for m in methods.values()]
+    check_resolution(args.size, size_multiple(*nets), "--size")
     materials = load_materials(args.data, args.size, args.n)
     evaluate(methods, materials, rig, args.out, max_figures=args.figures, progress=not args.quiet)
     print((Path(args.out) / "summary.md").read_text())

@@ -26,6 +26,7 @@ group (mean and principal components, affinely mapped to [0, 1]).
 
 from __future__ import annotations
 
+import numbers
 from pathlib import Path
 
 import numpy as np
@@ -101,7 +102,7 @@ def pca_patterns(lpdf: Tensor, n: int = 5) -> Tensor:
     maps; each is mapped affinely to [0, 1] (a component's sign is arbitrary, so it is fixed to
     make the brightest cell positive).
     """
-    if isinstance(n, bool) or not isinstance(n, int) or n < 1:
+    if isinstance(n, bool) or not isinstance(n, numbers.Integral) or n < 1:
         raise PatternError(f"PCA patterns: the count must be a whole number >= 1, got {n!r}")
     x = lpdf.reshape(lpdf.shape[0], -1).double()
     if x.shape[0] < n:

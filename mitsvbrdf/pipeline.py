@@ -27,7 +27,6 @@ from torch import Tensor
 
 from .checks import SEED_MAX, check_int
 from .errors import MitsvbrdfError
-
 from .importance import importance
 from .patterns import prepend_pattern
 from .render import render

@@ -61,7 +61,8 @@ class DisplayModel:
         if self.decay_gradient is not None:
             g = np.asarray(self.decay_gradient, dtype=float)
             if g.shape != (2,) or not np.all(np.isfinite(g)):
-                raise SceneError(f"lcd decay_gradient must be 2 finite numbers (gx, gy), got {_fmt(self.decay_gradient)}")
+                raise SceneError("lcd decay_gradient must be 2 finite numbers (gx, gy), got "
+                                 f"{_fmt(self.decay_gradient)}")
 
     @property
     def has_decay(self) -> bool:

@@ -229,7 +229,8 @@ def _same_size_other_bytes(p):
     p.write_bytes(bytes(b))
 
 
-@pytest.mark.parametrize("damage", [_delete, _truncate, _same_size_other_bytes], ids=["deleted", "truncated", "altered"])
+@pytest.mark.parametrize("damage", [_delete, _truncate, _same_size_other_bytes],
+                         ids=["deleted", "truncated", "altered"])
 def test_a_damaged_raw_frame_is_captured_again_on_resume(rig, pipeline, tmp_path, damage):
     whole = CaptureSession(tmp_path, pipeline, bracket(camera(rig))).run(progress=False)
     damage(tmp_path / "raw" / "L2_e1.exr")

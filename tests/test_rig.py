@@ -224,7 +224,8 @@ def test_display_model_made_in_code_meets_the_same_contract(rig, change):
 
 @pytest.mark.mitsuba
 @pytest.mark.parametrize("params,words", [({"intensity": 0.0}, "intensity"), ({"intensity": -1.0}, "intensity"),
-                                          ({"gamma": 0.0}, "gamma"), ({"color_matrix": "1 0 0 0 nan 0 0 0 1"}, "color_matrix"),
+                                          ({"gamma": 0.0}, "gamma"),
+                                          ({"color_matrix": "1 0 0 0 nan 0 0 0 1"}, "color_matrix"),
                                           ({"decay_cos_power": -1.0}, "decay_cos_power")])
 def test_lcd_plugin_refuses_the_same_display_models(params, words):
     from mitsvbrdf import backend

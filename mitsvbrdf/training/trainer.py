@@ -73,7 +73,8 @@ def _flatten(table: dict, prefix: str = "") -> dict:
 def config_changes(old: dict, new: dict) -> list[str]:
     """Keys (dotted) whose values differ between two config tables, outside RESUMABLE_CHANGES."""
     a, b = _flatten(old), _flatten(new)
-    return sorted(k for k in set(a) | set(b) if k not in RESUMABLE_CHANGES and a.get(k, "<absent>") != b.get(k, "<absent>"))
+    return sorted(k for k in set(a) | set(b)
+                  if k not in RESUMABLE_CHANGES and a.get(k, "<absent>") != b.get(k, "<absent>"))
 
 
 def _plain(value, where: str = "checkpoint") -> None:
@@ -140,8 +141,8 @@ class Trainer:
             raise TrainingError("--resume continues the run in the folder and --overwrite starts it again: choose one")
         existing = [f for f in RUN_FILES[:2] if (self.out / f).exists()]
         if existing and not resume and not overwrite:
-            raise TrainingError(f"{self.out} already holds a run ({', '.join(existing)}): pass --resume to continue it, "
-                                "--overwrite to start it again, or choose another out")
+            raise TrainingError(f"{self.out} already holds a run ({', '.join(existing)}): pass --resume to "
+                                "continue it, --overwrite to start it again, or choose another out")
         self.progress = progress and self.rank == 0
         self.stop_after = stop_after  # tests: stop as if killed after this many steps
         torch.manual_seed(cfg.seed)

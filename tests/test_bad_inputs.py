@@ -28,6 +28,10 @@ def simulate(*extra, scene=SCENE):
     return ["simulate", scene, "--material", MATERIAL, "--out", "out", "--quiet", "--resolution", "8", *extra]
 
 
+def train(setting):
+    return ["train", str(ROOT / "train" / "init-small.toml"), "--out", "run", "--quiet", "--set", setting]
+
+
 def capture(*extra):
     return ["capture", "--out", "session", "--simulate", MATERIAL, "--resolution", "16", "--spp", "1", "--quiet",
             *extra]
@@ -84,6 +88,13 @@ CASES = [
      "is a file", _a_file),
     ("train-out-under-a-file", ["train", str(ROOT / "train" / "init-small.toml"), "--out", "afile/run", "--quiet"],
      "which is a file", _a_file),
+    ("simulate-quadrature-beyond-its-memory-bound", simulate("--method", "reference", "--lobe-grid", "100000"),
+     "points per texel", None),
+    ("train-data-size-0", train("data.size=0"), "data.size", None),
+    ("train-lr-infinite", train("train.lr=inf"), "train.lr", None),
+    ("train-grad-clip-nan", train("train.grad_clip=nan"), "train.grad_clip", None),
+    ("train-no-materials", train("data.length=0"), "data.length", None),
+    ("train-negative-shot-noise", train("render.noise.shot=-1"), "render.noise.shot", None),
     ("evaluate-size-not-a-multiple", ["evaluate", "--model", NETWORKS, "--size", "20", "--n", "1", "--out", "ev",
                                       "--quiet"], "multiple of 8", None),
     ("evaluate-size-0", ["evaluate", "--model", NETWORKS, "--size", "0", "--out", "ev", "--quiet"], "--size", None),
@@ -112,6 +123,13 @@ CASES = [
      None),
     ("calibrate-out-is-a-folder", calibrate("response", "--exposures", "0.1,1"), "is a folder", _a_folder),
     ("calibrate-albedo-0", calibrate("display", "--albedo", "0"), "--albedo", None),
+    ("calibrate-without-a-camera", ["calibrate", "display", "--out", "cal.xml"], "--camera-folder", None),
+    ("calibrate-intrinsics-views-missing", ["calibrate", "intrinsics", "--out", "cal.xml", "--views", "nowhere"],
+     "--views", None),
+    ("calibrate-intrinsics-square-0", ["calibrate", "intrinsics", "--out", "cal.xml", "--views", ".", "--square", "0"],
+     "--square", None),
+    ("calibrate-intrinsics-inner-1", ["calibrate", "intrinsics", "--out", "cal.xml", "--views", ".", "--inner", "1x8"],
+     "--inner", None),
 ]
 
 

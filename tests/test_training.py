@@ -198,7 +198,7 @@ def test_pretrained_networks_with_wrong_names_are_refused(rig):
 
 
 def _params(out: Path) -> dict:
-    return torch.load(out / "checkpoint.pt", weights_only=False)["stage"]
+    return torch.load(out / "checkpoint.pt", weights_only=True)["stage"]
 
 
 def test_run_writes_checkpoint_metrics_plot_and_networks(tmp_path):
@@ -216,8 +216,8 @@ def test_resume_after_a_kill_reaches_the_same_parameters(tmp_path):
     train(cut, resume=True, progress=False)
     a, b = _params(tmp_path / "full"), _params(tmp_path / "cut")
     assert all(torch.equal(a[k], b[k]) for k in a)
-    la = [h["loss"] for h in torch.load(tmp_path / "full" / "checkpoint.pt", weights_only=False)["history"]]
-    lb = [h["loss"] for h in torch.load(tmp_path / "cut" / "checkpoint.pt", weights_only=False)["history"]]
+    la = [h["loss"] for h in torch.load(tmp_path / "full" / "checkpoint.pt", weights_only=True)["history"]]
+    lb = [h["loss"] for h in torch.load(tmp_path / "cut" / "checkpoint.pt", weights_only=True)["history"]]
     assert la == lb
 
 

@@ -13,11 +13,11 @@ from pathlib import Path
 
 import numpy as np
 
+from ..errors import MitsvbrdfError
+
 
 def exposure_times(text: str, what: str = "--exposures", at_least: int = 1) -> tuple[float, ...]:
     """Comma-separated exposure times in seconds: finite, > 0, and ``at_least`` distinct ones."""
-    from ..errors import MitsvbrdfError
-
     try:
         vals = tuple(float(v) for v in text.split(","))
     except ValueError:
@@ -82,7 +82,7 @@ def _devices(args, rig, material):
         cam = TriggeredCamera(sim, ctl) if ctl else sim
         return sim, cam, response, matrix, ctl
     if not args.camera_folder:
-        raise SystemExit("mitsvbrdf: error: give --simulate MATERIAL or a real camera (--camera-folder)")
+        raise MitsvbrdfError("give --simulate MATERIAL or a real camera (--camera-folder)")
     cam = FileDropCamera(args.camera_folder, trigger=controller_trigger(ctl) if ctl else None,
                          timeout=args.camera_timeout, linear=args.camera_linear)
     display = WindowDisplay(rig.lcd_cells) if args.display == "window" else ImageFileDisplay(args.display, rig.lcd_cells)
@@ -191,17 +191,23 @@ def cmd_calibrate(args: argparse.Namespace) -> int:
 
 def _calibrate_intrinsics(args, rig) -> int:
     from .. import imageio
+    from ..checks import check_float
     from .camera import calibrate_intrinsics, checkerboard_points, find_checkerboard_corners, write_camera_intrinsics
 
     if not args.views:
-        raise SystemExit("mitsvbrdf: error: calibrate intrinsics needs --views DIR of checkerboard photos")
-    files = sorted(p for p in Path(args.views).iterdir() if p.suffix.lower() in imageio.READ_SUFFIXES)
-    if len(files) < 3:
-        raise SystemExit(f"mitsvbrdf: error: {args.views}: need at least 3 checkerboard photos, found {len(files)}")
+        raise MitsvbrdfError("calibrate intrinsics needs --views DIR of checkerboard photos")
+    if not Path(args.views).is_dir():
+        raise MitsvbrdfError(f"--views {args.views!r} is not a folder")
+    check_float("--square", args.square, 0.0, low_open=True)
     try:
         inner = tuple(int(v) for v in args.inner.lower().split("x"))
     except ValueError:
-        raise SystemExit(f"mitsvbrdf: error: --inner must be ROWSxCOLS inner corners, got {args.inner!r}") from None
+        inner = ()
+    if len(inner) != 2 or min(inner) < 2:
+        raise MitsvbrdfError(f"--inner must be ROWSxCOLS inner corners, each >= 2, got {args.inner!r}")
+    files = sorted(p for p in Path(args.views).iterdir() if p.suffix.lower() in imageio.READ_SUFFIXES)
+    if len(files) < 3:
+        raise MitsvbrdfError(f"{args.views}: need at least 3 checkerboard photos, found {len(files)}")
     points, size = [], None
     for f in files:
         img = imageio.read_image(f)

@@ -22,6 +22,7 @@ from .brdf import roughness_to_alpha
 from .render.quadrature import LocalDirections, QuadratureSettings, cell_kernels, chunk_size
 from .checks import check_int
 from .errors import MaterialError
+from .svbrdf import NORMAL_TOL, RANGE_TOL
 from .rig import Rig
 
 
@@ -84,6 +85,14 @@ def importance(normal: Tensor, roughness: Tensor, rig: Rig, *, normalize: bool =
         bad = int((~torch.isfinite(t.detach())).sum())
         if bad:  # a NaN texel would otherwise drop out and leave a silently wrong (e.g. uniform) L_pdf
             raise MaterialError(f"importance: the {name} map has {bad} NaN/Inf values")
+    r = roughness.detach()
+    outside = int(((r < -RANGE_TOL) | (r > 1 + RANGE_TOL)).sum())
+    if outside:
+        raise MaterialError(f"importance: roughness must lie in [0, 1], {outside} values do not "
+                            f"(range {float(r.min()):.4g}..{float(r.max()):.4g})")
+    off = int(((torch.linalg.vector_norm(normal.detach(), dim=1) - 1).abs() > NORMAL_TOL).sum())
+    if off:
+        raise MaterialError(f"importance: normals must be unit vectors, {off} texels are not")
     check_int("texel_stride", texel_stride, 1)
     h, w = rig.lcd_cells
     out = []

@@ -300,6 +300,8 @@ class Rig:
             raise PatternError(
                 f"patterns must be shaped (P, 3, {h}, {w}) or (B, P, 3, {h}, {w}) for this "
                 f"{h}x{w}-cell LCD, got {tuple(patterns.shape)}")
+        if patterns.shape[-4] == 0:
+            raise PatternError(f"patterns {tuple(patterns.shape)} hold no pattern: P must be >= 1")
         d = patterns.detach()
         bad = ~torch.isfinite(d)
         if bad.any():

@@ -158,6 +158,25 @@ def test_importance_refuses_nan_maps(rig, bad_map):
         ms.importance(maps["normal"], maps["roughness"], rig)
 
 
+@pytest.mark.parametrize("bad,words", [("roughness", "roughness must lie in"), ("normal", "unit vectors")])
+def test_importance_refuses_maps_outside_their_range(rig, bad, words):
+    # roughness 5 or a zero normal gave an L_pdf without complaint
+    m = ms.SVBRDF.constant(size=4)
+    normal, roughness = m.normal.clone(), m.roughness.clone()
+    if bad == "roughness":
+        roughness[0, 0, 0, 0] = 5.0
+    else:
+        normal[0, :, 0, 0] = 0.0
+    with pytest.raises(MaterialError, match=words):
+        ms.importance(normal, roughness, rig)
+
+
+@pytest.mark.parametrize("method", ["reference", "ltc"])
+def test_render_refuses_an_empty_pattern_set(rig, method):
+    with pytest.raises(PatternError, match="no pattern"):
+        ms.render(ms.SVBRDF.constant(size=4), torch.zeros(0, 3, *rig.lcd_cells), rig, method=method)
+
+
 def test_importance_refuses_a_texel_stride_below_1(rig):
     m = ms.SVBRDF.constant(size=4)
     with pytest.raises(MitsvbrdfError, match="texel_stride"):

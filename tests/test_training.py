@@ -249,6 +249,11 @@ def test_training_into_a_finished_run_needs_resume_or_overwrite(tmp_path):
     assert (tmp_path / "networks.pt").read_bytes() == before
 
 
+def test_resume_and_overwrite_together_are_refused(tmp_path):
+    with pytest.raises(TrainingError, match="choose one"):
+        Trainer(tiny("init", tmp_path, extra=FAST, initializer_width=4), resume=True, overwrite=True, progress=False)
+
+
 def test_overwrite_starts_the_run_again_without_the_old_files(tmp_path):
     cfg = _init_run(tmp_path)
     t = Trainer(cfg, progress=False, overwrite=True, stop_after=1)

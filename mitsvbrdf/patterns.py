@@ -155,7 +155,11 @@ def load_patterns(name_or_path: str | Path, h: int = 32, w: int = 32) -> Tensor:
         except (ValueError, OSError) as e:
             raise PatternError(f"{path}: cannot read patterns from .npy ({e})") from e
     elif suffix == ".pt":
-        t = torch.load(path, weights_only=True)
+        try:
+            t = torch.load(path, weights_only=True)
+        except Exception as e:  # not a torch file, truncated, or pickled objects that are not tensors
+            first = str(e).strip().splitlines()[0] if str(e).strip() else type(e).__name__
+            raise PatternError(f"{path}: cannot read patterns from .pt ({type(e).__name__}: {first})") from e
         if not isinstance(t, Tensor):
             raise PatternError(f"{path}: expected a tensor, found {type(t).__name__}")
         t = t.float()

@@ -45,6 +45,16 @@ def _a_file(tmp):
     (tmp / "afile").write_text("not a folder")
 
 
+def _junk(name):
+    def make(tmp):
+        (tmp / name).write_text("junk")
+    return make
+
+
+def _a_camera_folder(tmp):
+    (tmp / "frames").mkdir()
+
+
 def _empty_patterns(tmp):
     np.save(tmp / "empty.npy", np.zeros((0, 3, 32, 32), np.float32))
 
@@ -79,6 +89,9 @@ CASES = [
     ("simulate-out-is-a-file", simulate("--out", "afile"), "is a file", _a_file),
     ("simulate-out-under-a-file", simulate("--out", "afile/sub"), "which is a file", _a_file),
     ("simulate-empty-pattern-file", simulate("--patterns", "empty.npy"), "no patterns", _empty_patterns),
+    ("simulate-pattern-file-not-torch", simulate("--patterns", "junk.pt"), "cannot read patterns", _junk("junk.pt")),
+    ("demo-networks-not-a-network-file", ["demo", "--networks", SCENE, "--out", "demo", "--quiet"],
+     "cannot read a networks", None),
     ("simulate-zero-size-lcd", simulate(scene="rig.xml"), "positive size", ZERO_LCD),
     ("simulate-zero-intensity", simulate(scene="rig.xml"), "intensity", DARK_LCD),
     ("simulate-negative-intensity", simulate(scene="rig.xml"), "intensity", NEGATIVE_LCD),
@@ -116,6 +129,10 @@ CASES = [
     ("capture-exposures-words", capture("--exposures", "abc"), "--exposures", None),
     ("capture-exposures-not-positive", capture("--exposures", "0,-1"), "--exposures", None),
     ("capture-gain-0", capture("--gain", "0"), "--gain", None),
+    ("capture-camera-without-its-response", ["capture", "--out", "session", "--camera-folder", "frames", "--display",
+                                             "shown.png", "--resolution", "16", "--quiet"], "response",
+     _a_camera_folder),
+    ("capture-controller-unreachable", capture("--controller", "socket://127.0.0.1:1"), "--controller", None),
     ("capture-resolution-not-a-multiple", capture("--resolution", "20"), "multiple of 8", None),
     ("calibrate-response-one-exposure", calibrate("response", "--exposures", "0.5"), "at least 2", None),
     ("calibrate-response-one-exposure-twice", calibrate("response", "--exposures", "0.5,0.5"), "at least 2", None),

@@ -70,9 +70,13 @@ def _devices(args, rig, material):
     response, matrix = read_camera_calibration(args.scene) if args.scene else (None, None)
     ctl = None
     if args.controller:
-        from .controller import SerialController
+        from .controller import ControllerError, SerialController
+        from .devices import DeviceError
 
-        ctl = SerialController(args.controller)
+        try:
+            ctl = SerialController(args.controller)
+        except ControllerError as e:
+            raise DeviceError(f"--controller {args.controller}: {e}") from e
     if args.simulate:
         truth_scene = args.truth_scene or args.scene
         truth = Rig.from_scene(truth_scene)

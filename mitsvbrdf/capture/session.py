@@ -121,14 +121,16 @@ class BracketCapture:
 
     def __post_init__(self):
         self.exposures = tuple(float(t) for t in self.exposures)
-        if not self.exposures or min(self.exposures) <= 0:
-            raise ValueError(f"exposures must be positive seconds, got {self.exposures}")
+        if not self.exposures or not all(np.isfinite(t) and t > 0 for t in self.exposures):
+            raise SessionError(f"exposures must be positive seconds, got {self.exposures}")
         if self.raw_only:
             return
         if not self.camera.linear and self.response is None:
-            raise ValueError("this camera's frames are not linear: give its response (mitsvbrdf calibrate response)")
+            raise SessionError("this camera's frames are not linear: give its response (mitsvbrdf calibrate "
+                               "response), or --camera-linear for RAW/EXR frames")
         if not self.camera.rectified and self.rectify is None:
-            raise ValueError("this camera's frames are camera views: give a rectification onto the sample's texel grid")
+            raise SessionError("this camera's frames are camera views: give a rectification onto the sample's "
+                               "texel grid")
 
     def frame(self, exposure: float) -> np.ndarray:
         """One raw frame (H, W, 3) float32 at ``exposure`` seconds of what is shown."""

@@ -402,6 +402,9 @@ def main(argv: list[str] | None = None) -> int:
     except MitsvbrdfError as e:
         print(f"mitsvbrdf: error: {e}", file=sys.stderr)
         return 2
+    except KeyboardInterrupt:  # Ctrl-C outside train's own handling (which checkpoints first)
+        print("\nmitsvbrdf: interrupted", file=sys.stderr)
+        return 130
 
 
 if __name__ == "__main__":

@@ -227,3 +227,14 @@ def test_simulation_record_reports_the_measured_radiance_of_a_black_capture(tmp_
                  "reference", "--resolution", "4", "--out", str(tmp_path / "out"), "--quiet"]) == 0
     import json
     assert json.loads((tmp_path / "out" / "simulation.json").read_text())["radiance_p99_5"] == 0.0
+
+
+def test_ctrl_c_in_any_command_exits_130_with_one_line(monkeypatch, capsys):
+    import mitsvbrdf.cli as cli
+
+    def interrupted(args):
+        raise KeyboardInterrupt
+
+    monkeypatch.setattr(cli, "cmd_patterns_pca", interrupted)
+    assert main(["patterns", "pca", "--out", "p.npy"]) == 130
+    assert capsys.readouterr().err.strip().splitlines() == ["mitsvbrdf: interrupted"]

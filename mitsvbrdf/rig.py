@@ -213,6 +213,11 @@ class Rig:
             raise SceneError(f"{self.source}: the LCD must lie entirely above the sample plane z = 0")
         if self.camera_position_np()[2] <= 0:
             raise SceneError(f"{self.source}: the camera must be above the sample plane z = 0")
+        if not 0 < self.camera_fov < 180:
+            raise SceneError(f"{self.source}: the camera's fov must be in (0, 180) degrees, got {self.camera_fov:g}")
+        if min(self.film_size) < 1:
+            raise SceneError(f"{self.source}: the film must be at least 1 x 1 px, got {self.film_size[1]} x "
+                             f"{self.film_size[0]}")
 
     # ---- geometry (numpy, float64) ------------------------------------------------------------
 

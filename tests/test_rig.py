@@ -200,6 +200,8 @@ BROKEN_DISPLAY = [
     ("infinite translation", ('<scale x="0.03" y="0.03"/>', '<scale x="0.03" y="0.03"/><translate x="inf"/>'),
      "finite"),
     ("float without a number", (INTENSITY, '<float name="intensity" value=""/>'), "expected 1 number"),
+    ("zero fov", ('<float name="fov" value="13"/>', '<float name="fov" value="0"/>'), "fov"),
+    ("empty film", ('<integer name="width" value="$resolution"/>', '<integer name="width" value="0"/>'), "film"),
 ]
 
 

@@ -113,10 +113,14 @@ def evaluate(methods: dict[str, Method], materials: Iterable[SVBRDF], rig: Rig, 
     from tqdm import tqdm
 
     from .errors import MaterialError
+    from .pipeline import check_resolution, size_multiple
 
     materials = list(materials)
     if not materials:  # before the folder is made
         raise MaterialError("no materials to evaluate")
+    need = size_multiple(*(getattr(m, "networks", torch.nn.Module()) for m in methods.values()))
+    for i, gt in enumerate(materials):  # every size the methods' networks cannot take, before any work
+        check_resolution(gt.resolution, need, f"material {gt.name or i}")
     out = Path(out_dir)
     (out / "figures").mkdir(parents=True, exist_ok=True)
     relight = relight or Relighting.make(rig)

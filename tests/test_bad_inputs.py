@@ -238,3 +238,13 @@ def test_ctrl_c_in_any_command_exits_130_with_one_line(monkeypatch, capsys):
     monkeypatch.setattr(cli, "cmd_patterns_pca", interrupted)
     assert main(["patterns", "pca", "--out", "p.npy"]) == 130
     assert capsys.readouterr().err.strip().splitlines() == ["mitsvbrdf: interrupted"]
+
+
+def test_evaluate_refuses_a_material_size_its_networks_cannot_take_before_making_the_folder(rig, tmp_path):
+    from mitsvbrdf.demo import load_pipeline
+    from mitsvbrdf.evaluation import adaptive_method, evaluate
+
+    method = adaptive_method(load_pipeline(NETWORKS, rig), spp=1)
+    with pytest.raises(MitsvbrdfError, match="multiple of 8"):
+        evaluate({"adaptive": method}, [ms.SVBRDF.constant(size=20)], rig, tmp_path / "ev", progress=False)
+    assert not (tmp_path / "ev").exists()

@@ -70,6 +70,12 @@ def test_extremes_grid_has_finite_images_and_gradients(rig, kwargs):
         assert torch.isfinite(t.grad).all(), f"non-finite gradient w.r.t. {name}"
 
 
+def test_extremes_grid_has_a_finite_lpdf_in_the_unit_range(rig):
+    m = extremes_material()
+    lpdf = ms.importance(m.normal, m.roughness, rig)
+    assert torch.isfinite(lpdf).all() and lpdf.min() == 0 and lpdf.max() == 1
+
+
 @pytest.mark.parametrize("omega", [0.0, 1e-20, 1e-3])
 def test_lobe_share_has_finite_gradients_down_to_zero_solid_angle(omega):
     # Lobe-rule directions that graze or miss the LCD carry a vanishing solid angle per light

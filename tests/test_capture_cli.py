@@ -80,3 +80,14 @@ def test_calibrate_intrinsics_from_a_folder_of_checkerboard_photos(tmp_path):
 def test_calibrate_intrinsics_without_enough_photos_is_refused(tmp_path, capsys):
     assert main(["calibrate", "intrinsics", "--views", str(tmp_path), "--out", str(tmp_path / "x.xml")]) == 2
     assert "at least 3" in capsys.readouterr().err
+
+
+def test_ctrl_c_during_a_capture_exits_130_and_says_how_to_resume(tmp_path, capsys, monkeypatch):
+    from mitsvbrdf.capture import session
+
+    def interrupted(self, *a, **k):
+        raise KeyboardInterrupt
+
+    monkeypatch.setattr(session.CaptureSession, "run", interrupted)
+    assert main(["capture", "--out", str(tmp_path / "s"), *SIM]) == 130
+    assert "rerun with --resume" in capsys.readouterr().err

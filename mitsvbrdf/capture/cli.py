@@ -9,6 +9,7 @@ from __future__ import annotations
 
 import argparse
 import json
+import sys
 from pathlib import Path
 
 import numpy as np
@@ -133,6 +134,9 @@ def cmd_capture(args: argparse.Namespace) -> int:
         session.run(resume=args.resume, progress=not args.quiet)
     except ControllerError as e:
         raise DeviceError(f"{e}; every frame so far is in {args.out}: fix the link and rerun with --resume") from e
+    except KeyboardInterrupt:
+        print(f"\nmitsvbrdf: interrupted; every frame so far is in {args.out}: rerun with --resume", file=sys.stderr)
+        return 130
     finally:
         if ctl is not None:
             ctl.close()

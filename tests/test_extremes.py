@@ -64,7 +64,10 @@ def test_extremes_grid_has_finite_images_and_gradients(rig, kwargs):
     img = ms.render(ms.SVBRDF(**maps), pats, rig, **kwargs)
     assert torch.isfinite(img).all()
     assert (img[:, 0] == 0).all(), "a black pattern renders black"
-    assert (img >= 0).all()
+    if kwargs["method"] != "mitsuba":
+        # deterministic rules of a non-negative integrand; a Monte Carlo estimate with a control
+        # variate (an integrator option of the scene file) may dip below 0 and stay unbiased
+        assert (img >= 0).all()
     img.square().sum().backward()
     for name, t in [*maps.items(), ("patterns", pats)]:
         assert torch.isfinite(t.grad).all(), f"non-finite gradient w.r.t. {name}"

@@ -169,7 +169,9 @@ def sample_vndf_local(wo: Tensor, alpha: Tensor, u1: Tensor, u2: Tensor) -> Tens
     wstd = _normalize(wstd, -1)
     phi = 2.0 * math.pi * u1
     z = (1.0 - u2) * (1.0 + wstd[..., 2]) - wstd[..., 2]
-    sin_t = torch.sqrt((1.0 - z * z).clamp_min(0.0))
+    # sqrt has an infinite derivative at 0 (z = +-1, the cap's poles, e.g. u2 = 0): clamping its
+    # argument just above 0 keeps the gradient finite and moves h by at most 1e-15.
+    sin_t = torch.sqrt(((1.0 - z) * (1.0 + z)).clamp_min(1e-30))
     cap = torch.stack([sin_t * torch.cos(phi), sin_t * torch.sin(phi), z], dim=-1)
     hstd = cap + wstd
     h = torch.cat([hstd[..., :2] * a, hstd[..., 2:].clamp_min(0.0)], dim=-1)

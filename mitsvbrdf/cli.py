@@ -7,7 +7,7 @@ Commands:
              [--adaptive NAME=NETWORKS ...] [--uniform-lpdf NAME=NETWORKS ...]
         Map and re-rendering metrics of the adaptive method, its variants and the baselines;
         tables, figures, HTML.
-    train CONFIG [--resume] [--set key=value ...] [--out DIR]
+    train CONFIG [--resume | --overwrite] [--set key=value ...] [--out DIR]
         Train one stage of the method (init, stage1, stage2, finetune, fixed) from a TOML config.
     capture --out SESSION_DIR [--scene S] [--resume] (--simulate MATERIAL | --camera-folder DIR ...)
         The adaptive acquisition at the bench, every frame on disk as it arrives (docs/capture.md).
@@ -29,6 +29,8 @@ from pathlib import Path
 
 import numpy as np
 import torch
+
+from .checks import check_float, check_int, check_out_dir, check_out_file, check_seed
 
 
 def _resize_svbrdf(svbrdf, size: int):
@@ -62,16 +64,22 @@ def cmd_simulate(args: argparse.Namespace) -> int:
     from .rig import Rig
     from .svbrdf import SVBRDF
 
+    # Every value is checked, and every input read, before rendering; the folder is made last.
+    if args.resolution is not None:
+        check_int("--resolution", args.resolution, 1)
+    check_int("--spp", args.spp, 1)
+    check_seed("--seed", args.seed)
+    check_int("--cell-order", args.cell_order, 1)
+    check_int("--lobe-grid", args.lobe_grid, 0)
+    out = check_out_dir("--out", args.out)
     rig = Rig.from_scene(args.scene)
     svbrdf = SVBRDF.load(args.material)
-    if args.resolution:
+    if args.resolution is not None:
         svbrdf = _resize_svbrdf(svbrdf, args.resolution)
     h, w = rig.lcd_cells
     patterns = load_patterns(args.patterns, h, w)
     rig.check_patterns(patterns)
     settings = QuadratureSettings(cell_order=args.cell_order, lobe_grid=args.lobe_grid)
-    out = Path(args.out)
-    out.mkdir(parents=True, exist_ok=True)
     H, W = svbrdf.resolution
     started = time.time()
     if args.method == "mitsuba":
@@ -85,12 +93,13 @@ def cmd_simulate(args: argparse.Namespace) -> int:
                                    disable=args.quiet) as bar:
             images = render(svbrdf, patterns, rig, method=args.method, settings=settings, progress=bar.update)[0]
     render_s = time.time() - started
-    peak = float(np.percentile(images.numpy(), 99.5)) or 1.0
+    peak = float(np.percentile(images.numpy(), 99.5))  # recorded as measured: 0 for a black capture
+    out.mkdir(parents=True, exist_ok=True)
     written = []
     for k, img in enumerate(images):
         arr = img.permute(1, 2, 0).numpy()
         imageio.write_exr(out / f"image_{k:02d}.exr", arr)
-        imageio.write_png(out / f"image_{k:02d}.png", imageio.tonemap_preview(arr, exposure=1.0 / peak))
+        imageio.write_png(out / f"image_{k:02d}.png", imageio.tonemap_preview(arr, exposure=1.0 / (peak or 1.0)))
         written += [f"image_{k:02d}.exr", f"image_{k:02d}.png"]
     imageio.write_png(out / "patterns.png", _pattern_strip(patterns))
     with torch.no_grad():
@@ -121,6 +130,12 @@ def cmd_materials_preview(args: argparse.Namespace) -> int:
     from .patterns import load_patterns
     from .rig import Rig
 
+    for name, value, low in (("--n", args.n, 1), ("--size", args.size, 1), ("--tile", args.tile, 1),
+                             ("--columns", args.columns, 1), ("--render-size", args.render_size, 0),
+                             ("--start", args.start, 0)):
+        check_int(name, value, low)
+    check_float("--bump", args.bump, 0.0)
+    check_out_file("--out", args.out)
     families = [f.strip() for f in args.families.split(",") if f.strip()] if args.families else None
     started = time.time()
     svbrdf = procedural.generate(args.n, size=args.size, seed=args.seed, families=families, start=args.start,
@@ -144,7 +159,12 @@ def cmd_materials_preview(args: argparse.Namespace) -> int:
 
 def cmd_demo(args: argparse.Namespace) -> int:
     from .demo import DEFAULT_MATERIAL, DEFAULT_NETWORKS, run_demo
+    from .pipeline import SIMULATE_SEED_MAX
 
+    check_int("--resolution", args.resolution, 1)
+    check_int("--spp", args.spp, 1)
+    check_int("--seed", args.seed, 0, SIMULATE_SEED_MAX)
+    check_out_dir("--out", args.out)
     rec = run_demo(args.out, material=args.material or DEFAULT_MATERIAL, networks=args.networks or DEFAULT_NETWORKS,
                    scene=args.scene, resolution=args.resolution, spp=args.spp, seed=args.seed,
                    progress=not args.quiet)
@@ -198,10 +218,16 @@ def cmd_evaluate(args: argparse.Namespace) -> int:
     from .demo import load_pipeline
     from .errors import MitsvbrdfError
     from .evaluation import adaptive_method, baseline_method, evaluate
+    from .pipeline import SIMULATE_SEED_MAX, check_resolution, size_multiple
     from .rig import Rig
 
     if args.figures is not None and args.figures < 0:  # before the networks and materials load
         raise MitsvbrdfError(f"--figures must be >= 0, got {args.figures}")
+    check_int("--size", args.size, 1)
+    check_int("--n", args.n, 1 if args.data == "procedural" else 0)  # 0: every material of a folder
+    check_int("--spp", args.spp, 1)
+    check_int("--seed", args.seed, 0, SIMULATE_SEED_MAX)
+    check_out_dir("--out", args.out)
     rig = Rig.from_scene(args.scene)
     runs = [("adaptive", args.model, "initializer")]
     runs += [(*_named(s, "--adaptive"), "initializer") for s in args.adaptive or []]
@@ -215,6 +241,9 @@ def cmd_evaluate(args: argparse.Namespace) -> int:
         if name in methods:
             raise MitsvbrdfError(f"two methods are named {name!r}")
         methods[name] = baseline_method(path, rig, spp=args.spp, seed=args.seed)
+    # The networks decide which sizes they take: check before any material is loaded or rendered.
+    nets = [getattr(m, "networks", torch.nn.Module()) for m in methods.values()]
+    check_resolution(args.size, size_multiple(*nets), "--size")
     materials = load_materials(args.data, args.size, args.n)
     evaluate(methods, materials, rig, args.out, max_figures=args.figures, progress=not args.quiet)
     print((Path(args.out) / "summary.md").read_text())
@@ -227,6 +256,11 @@ def cmd_patterns_pca(args: argparse.Namespace) -> int:
     from .patterns import pca_patterns
     from .rig import Rig
 
+    check_int("--count", args.count, 1)
+    check_int("--n", args.n, args.count)  # the PCA of `count` patterns needs that many L_pdf maps
+    check_int("--size", args.size, 1)
+    check_int("--stride", args.stride, 1, args.size)
+    out = check_out_file("--out", args.out)
     rig = Rig.from_scene(args.scene)
     lp = []
     for start in range(0, args.n, 16):
@@ -234,7 +268,6 @@ def cmd_patterns_pca(args: argparse.Namespace) -> int:
         with torch.no_grad():
             lp.append(importance(mats.normal, mats.roughness, rig, texel_stride=args.stride))
     pats = pca_patterns(torch.cat(lp), n=args.count)
-    out = Path(args.out)
     out.parent.mkdir(parents=True, exist_ok=True)
     np.save(out, pats.numpy())
     print(f"wrote {out}: {args.count} PCA patterns from the L_pdf of {args.n} training materials (seed {args.seed})")
@@ -242,16 +275,26 @@ def cmd_patterns_pca(args: argparse.Namespace) -> int:
 
 
 def cmd_train(args: argparse.Namespace) -> int:
-    from .training import load_config, train
+    from .training import TrainingInterrupted, load_config, train
+    from .training.trainer import RUN_FILES
 
     overrides = list(args.set or [])
     if args.out:
         overrides.append(f'out="{args.out}"')
     cfg = load_config(args.config, overrides)
-    last = train(cfg, resume=args.resume, progress=not args.quiet)
+    check_out_dir("--out" if args.out else f"{args.config}: out", cfg.out)
+
+    def written() -> str:  # only what is on disk now
+        return ", ".join(f for f in ("config.json", *RUN_FILES) if (Path(cfg.out) / f).is_file()) or "nothing"
+
+    try:
+        last = train(cfg, resume=args.resume, overwrite=args.overwrite, progress=not args.quiet)
+    except TrainingInterrupted as e:
+        print(f"\nmitsvbrdf: {e}; files in {cfg.out}: {written()}", file=sys.stderr)
+        return 128 + e.signal
     if last:
         print("last logged: " + ", ".join(f"{k}={v:.4g}" for k, v in last.items() if isinstance(v, float)))
-    print(f"outputs in {cfg.out}: checkpoint.pt, metrics.csv, loss.png, networks.pt")
+    print(f"outputs in {cfg.out}: {written()}")
     return 0
 
 
@@ -265,7 +308,7 @@ def build_parser() -> argparse.ArgumentParser:
                    help="pattern family (uniform, monograd, colorgrad, step_edges, random) or a "
                         ".npy/.pt/PNG file")
     s.add_argument("--out", required=True, help="output folder")
-    s.add_argument("--resolution", type=int, default=0, help="resample the maps to N x N first")
+    s.add_argument("--resolution", type=int, default=None, help="resample the maps to N x N first (N >= 1)")
     s.add_argument("--method", default="mitsuba", choices=["mitsuba", "reference"],
                    help="mitsuba: path-traced through the scene's own plugins (default); reference: "
                         "the deterministic torch quadrature")
@@ -306,7 +349,10 @@ def build_parser() -> argparse.ArgumentParser:
     pc.set_defaults(func=cmd_patterns_pca)
     t = sub.add_parser("train", help="train a stage from a TOML config (see train/ and docs/training.md)")
     t.add_argument("config", help="config file, e.g. train/stage1-small.toml")
-    t.add_argument("--resume", action="store_true", help="continue from OUT/checkpoint.pt")
+    t.add_argument("--resume", action="store_true", help="continue from OUT/checkpoint.pt (the settings must "
+                   "match, except those listed in docs/training.md, e.g. more train.steps)")
+    t.add_argument("--overwrite", action="store_true", help="start again in a folder that holds a run (its "
+                   "checkpoint, networks, metrics and plot are removed)")
     t.add_argument("--set", action="append", metavar="KEY=VALUE", help="override a config key, e.g. train.steps=10")
     t.add_argument("--out", default="", help="output folder (overrides the config's out)")
     t.add_argument("--quiet", action="store_true", help="no progress bar")
@@ -356,6 +402,9 @@ def main(argv: list[str] | None = None) -> int:
     except MitsvbrdfError as e:
         print(f"mitsvbrdf: error: {e}", file=sys.stderr)
         return 2
+    except KeyboardInterrupt:  # Ctrl-C outside train's own handling (which checkpoints first)
+        print("\nmitsvbrdf: interrupted", file=sys.stderr)
+        return 130
 
 
 if __name__ == "__main__":

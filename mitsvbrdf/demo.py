@@ -23,6 +23,7 @@ from pathlib import Path
 import torch
 
 from . import imageio
+from .checks import check_out_dir
 from .evaluation import Capture, Relighting, material_figure, score
 from .export import export_gltf, export_mitsuba_scene
 from .nets import NetworkFileError, network_from_record
@@ -59,14 +60,14 @@ def run_demo(out: str | Path, *, material: str | Path = DEFAULT_MATERIAL, networ
 
     from .cli import _pattern_strip, _resize_svbrdf
 
-    out = Path(out)
-    out.mkdir(parents=True, exist_ok=True)
+    out = check_out_dir("out", out)
     steps = ["load", "capture + reconstruct", "re-render", "write"]
-    bar = tqdm(total=len(steps), desc="demo", disable=not progress)
     t0 = time.perf_counter()
     rig = Rig.from_scene(scene)
-    gt = _resize_svbrdf(SVBRDF.load(material), resolution)
     pipe = load_pipeline(networks, rig)
+    pipe.check_resolution(resolution, "resolution")  # before rendering anything
+    gt = _resize_svbrdf(SVBRDF.load(material), resolution)
+    bar = tqdm(total=len(steps), desc="demo", disable=not progress)
     bar.set_postfix_str(steps[1])
     bar.update(1)
     t1 = time.perf_counter()
@@ -78,6 +79,7 @@ def run_demo(out: str | Path, *, material: str | Path = DEFAULT_MATERIAL, networ
     metrics, gt_relit, pred_relit = score(acq.svbrdf, gt, rig, relight)
     bar.set_postfix_str(steps[3])
     bar.update(1)
+    out.mkdir(parents=True, exist_ok=True)  # only now: a failed run leaves no folder behind
     acq.svbrdf.save(out / "maps.png")
     acq.svbrdf.save(out / "maps.exr")
     gt.save(out / "ground_truth.png", include_render=False)

@@ -28,5 +28,9 @@ class PatternError(MitsvbrdfError):
     """Patterns of the wrong shape, with NaN, or with drive values outside [0, 1]."""
 
 
+class ImageError(MitsvbrdfError):
+    """Images (renders or captures) of the wrong shape, or with NaN/Inf values."""
+
+
 class BackendError(RuntimeError):
     """No usable Dr.Jit backend (e.g. no libLLVM >= 16 for the LLVM variant)."""

@@ -47,6 +47,9 @@ class Capture:
     svbrdf: SVBRDF
 
 
+#: A method maps a ground-truth material to its capture and reconstruction. The builders below
+#: also set ``method.networks`` to the torch module(s) it runs, whose U-Nets decide which
+#: material sizes it takes (:func:`mitsvbrdf.pipeline.size_multiple`).
 Method = Callable[[SVBRDF], Capture]
 
 
@@ -105,19 +108,25 @@ def evaluate(methods: dict[str, Method], materials: Iterable[SVBRDF], rig: Rig, 
     ``max_figures`` limits the figures to the first materials (they are large: one row of images
     per method).
 
-    Returns the per-material rows. Raises ValueError for an empty material set.
+    Returns the per-material rows. Raises MaterialError (a ValueError) for an empty material set.
     """
     from tqdm import tqdm
 
+    from .errors import MaterialError
+    from .pipeline import check_resolution, size_multiple
+
+    materials = list(materials)
+    if not materials:  # before the folder is made
+        raise MaterialError("no materials to evaluate")
+    need = size_multiple(*(getattr(m, "networks", torch.nn.Module()) for m in methods.values()))
+    for i, gt in enumerate(materials):  # every size the methods' networks cannot take, before any work
+        check_resolution(gt.resolution, need, f"material {gt.name or i}")
     out = Path(out_dir)
     (out / "figures").mkdir(parents=True, exist_ok=True)
     relight = relight or Relighting.make(rig)
     lp, lp_note = lpips_model()
     rows: list[dict] = []
     figs: list[tuple[str, str]] = []
-    materials = list(materials)
-    if not materials:
-        raise ValueError("no materials to evaluate")
     bar = tqdm(total=len(materials) * len(methods), desc="evaluate", disable=not progress)
     seen: set[str] = set()
     for i, gt in enumerate(materials):
@@ -277,6 +286,7 @@ def adaptive_method(pipeline, *, method: str = "mitsuba", spp: int = 64, seed: i
         acq = pipeline.simulate(gt, method=method, spp=spp, seed=seed)
         return Capture(acq.patterns, acq.images, acq.svbrdf)
 
+    run.networks = pipeline
     return run
 
 
@@ -311,11 +321,15 @@ def baseline_method(path: str | Path, rig: Rig, *, spp: int = 64, seed: int = 0)
                                f"the file has {have} (use the export of a 'fixed' stage)")
     net = network_from_record(recs["svbrdf"], f"{path}: svbrdf").eval()
     if "flash" in recs:
-        return flash_method(network_from_record(recs["flash"], f"{path}: flash"), net, rig)
+        run = flash_method(network_from_record(recs["flash"], f"{path}: flash"), net, rig)
+        run.networks = net
+        return run
     pats = network_from_record(recs["patterns"], f"{path}: patterns")().detach()
     if tuple(pats.shape[1:]) != (3, *rig.lcd_cells):
         raise NetworkFileError(f"{path}: patterns {tuple(pats.shape[1:])} do not fit this rig's LCD "
                                f"{(3, *rig.lcd_cells)}")
-    return fixed_pattern_method(pats, lambda images, patterns: reconstruct_maps(net, images, patterns, rig), rig,
-                                spp=spp, seed=seed)
+    run = fixed_pattern_method(pats, lambda images, patterns: reconstruct_maps(net, images, patterns, rig), rig,
+                               spp=spp, seed=seed)
+    run.networks = net
+    return run
 

@@ -20,6 +20,9 @@ from torch import Tensor
 
 from .brdf import roughness_to_alpha
 from .render.quadrature import LocalDirections, QuadratureSettings, cell_kernels, chunk_size
+from .checks import check_int
+from .errors import MaterialError
+from .svbrdf import NORMAL_TOL, RANGE_TOL
 from .rig import Rig
 
 
@@ -76,8 +79,21 @@ def importance(normal: Tensor, roughness: Tensor, rig: Rig, *, normalize: bool =
         normal, roughness = normal.unsqueeze(0), roughness.unsqueeze(0)
     if normal.ndim != 4 or normal.shape[1] != 3 or roughness.shape[1] != 1 or \
             normal.shape[-2:] != roughness.shape[-2:] or normal.shape[0] != roughness.shape[0]:
-        raise ValueError(f"importance needs normal (B, 3, H, W) and roughness (B, 1, H, W), got "
-                         f"{tuple(normal.shape)} and {tuple(roughness.shape)}")
+        raise MaterialError(f"importance needs normal (B, 3, H, W) and roughness (B, 1, H, W), got "
+                            f"{tuple(normal.shape)} and {tuple(roughness.shape)}")
+    for name, t in (("normal", normal), ("roughness", roughness)):
+        bad = int((~torch.isfinite(t.detach())).sum())
+        if bad:  # a NaN texel would otherwise drop out and leave a silently wrong (e.g. uniform) L_pdf
+            raise MaterialError(f"importance: the {name} map has {bad} NaN/Inf values")
+    r = roughness.detach()
+    outside = int(((r < -RANGE_TOL) | (r > 1 + RANGE_TOL)).sum())
+    if outside:
+        raise MaterialError(f"importance: roughness must lie in [0, 1], {outside} values do not "
+                            f"(range {float(r.min()):.4g}..{float(r.max()):.4g})")
+    off = int(((torch.linalg.vector_norm(normal.detach(), dim=1) - 1).abs() > NORMAL_TOL).sum())
+    if off:
+        raise MaterialError(f"importance: normals must be unit vectors, {off} texels are not")
+    check_int("texel_stride", texel_stride, 1)
     h, w = rig.lcd_cells
     out = []
     for b in range(normal.shape[0]):

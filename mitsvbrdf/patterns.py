@@ -26,6 +26,7 @@ group (mean and principal components, affinely mapped to [0, 1]).
 
 from __future__ import annotations
 
+import numbers
 from pathlib import Path
 
 import numpy as np
@@ -101,6 +102,8 @@ def pca_patterns(lpdf: Tensor, n: int = 5) -> Tensor:
     maps; each is mapped affinely to [0, 1] (a component's sign is arbitrary, so it is fixed to
     make the brightest cell positive).
     """
+    if isinstance(n, bool) or not isinstance(n, numbers.Integral) or n < 1:
+        raise PatternError(f"PCA patterns: the count must be a whole number >= 1, got {n!r}")
     x = lpdf.reshape(lpdf.shape[0], -1).double()
     if x.shape[0] < n:
         raise PatternError(f"PCA of {n} patterns needs at least {n} L_pdf maps, got {x.shape[0]}")
@@ -152,7 +155,11 @@ def load_patterns(name_or_path: str | Path, h: int = 32, w: int = 32) -> Tensor:
         except (ValueError, OSError) as e:
             raise PatternError(f"{path}: cannot read patterns from .npy ({e})") from e
     elif suffix == ".pt":
-        t = torch.load(path, weights_only=True)
+        try:
+            t = torch.load(path, weights_only=True)
+        except Exception as e:  # not a torch file, truncated, or pickled objects that are not tensors
+            first = str(e).strip().splitlines()[0] if str(e).strip() else type(e).__name__
+            raise PatternError(f"{path}: cannot read patterns from .pt ({type(e).__name__}: {first})") from e
         if not isinstance(t, Tensor):
             raise PatternError(f"{path}: expected a tensor, found {type(t).__name__}")
         t = t.float()
@@ -172,4 +179,6 @@ def load_patterns(name_or_path: str | Path, h: int = 32, w: int = 32) -> Tensor:
         t = t.unsqueeze(0)
     if t.ndim != 4 or tuple(t.shape[1:]) != (3, h, w):
         raise PatternError(f"{path}: patterns must be (P, 3, {h}, {w}), got {tuple(t.shape)}")
+    if t.shape[0] == 0:
+        raise PatternError(f"{path}: the file holds no patterns (shape {tuple(t.shape)}); P must be >= 1")
     return t.contiguous()

@@ -19,17 +19,24 @@ tensors without the batch dimension.
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass
 
 import torch
 from torch import Tensor
 
+from .checks import SEED_MAX, check_int
+from .errors import MitsvbrdfError
 from .importance import importance
 from .patterns import prepend_pattern
 from .render import render
 from .rig import Rig
 from .separation import reconstruct_maps
 from .svbrdf import SVBRDF
+
+
+#: simulate() seeds capture step k (1..99) with seed * 100 + k, a UInt32.
+SIMULATE_SEED_MAX = (SEED_MAX - 99) // 100
 
 
 @dataclass
@@ -65,6 +72,16 @@ class AcquisitionPipeline(torch.nn.Module):
         self.register_buffer("l0", l0.detach().clone())
         self.initializer, self.lighting, self.reconstructor = initializer, lighting, reconstructor
         self.rig, self.lpdf_stride, self.lpdf_from = rig, lpdf_stride, lpdf_from
+
+    @property
+    def size_multiple(self) -> int:
+        """Materials must be H x W with H and W multiples of this (the U-Nets' downsampling)."""
+        return size_multiple(self)
+
+    def check_resolution(self, resolution: int | tuple[int, int], what: str = "the material") -> None:
+        """Raise MitsvbrdfError unless these networks can take an H x W capture; call it before
+        rendering anything."""
+        check_resolution(resolution, self.size_multiple, what)
 
     @torch.no_grad()
     def predict_patterns(self, i0: Tensor) -> tuple[Tensor, Tensor, SVBRDF]:
@@ -103,6 +120,8 @@ class AcquisitionPipeline(torch.nn.Module):
                  noise=None) -> Acquisition | list[Acquisition]:
         """Acquire ``svbrdf`` (B materials) through a renderer (and an optional noise model
         ``noise(images, generator)``), with a fixed seed per capture step."""
+        check_int("seed", seed, 0, SIMULATE_SEED_MAX)
+        self.check_resolution(svbrdf.resolution)
         g = torch.Generator(device=svbrdf.device).manual_seed(seed)
         step = iter(range(1, 100))
 
@@ -112,6 +131,27 @@ class AcquisitionPipeline(torch.nn.Module):
             return imgs if noise is None else noise(imgs, g)
 
         return self.acquire(capture, batch=svbrdf.batch_size)
+
+
+def size_multiple(*modules: torch.nn.Module) -> int:
+    """The least common multiple of the input-size factors of every U-Net encoder in ``modules``
+    (1 when there is none): H and W of their inputs must be multiples of it."""
+    from .nets.nafnet import NAFEncoder
+
+    f = 1
+    for m in modules:
+        for sub in m.modules():
+            if isinstance(sub, NAFEncoder):
+                f = math.lcm(f, sub.factor)
+    return f
+
+
+def check_resolution(resolution: int | tuple[int, int], multiple: int, what: str = "the material") -> None:
+    """Raise MitsvbrdfError unless H and W are positive multiples of ``multiple``."""
+    h, w = (resolution, resolution) if isinstance(resolution, int) else tuple(resolution)
+    if h < 1 or w < 1 or h % multiple or w % multiple:
+        raise MitsvbrdfError(f"{what} is {h}x{w} texels; these networks need a size that is a positive "
+                             f"multiple of {multiple} (e.g. {max(multiple, (max(h, 1) // multiple) * multiple)})")
 
 
 def maps_to_svbrdf(encoded: Tensor) -> SVBRDF:

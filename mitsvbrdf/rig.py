@@ -43,6 +43,27 @@ class DisplayModel:
     decay_cos_power: float | None = None
     decay_gradient: tuple[float, float] | None = None
 
+    def __post_init__(self):
+        # Checked here so that every way of making a display model (scene file, with_display,
+        # calibration) meets the same contract; from_scene adds the file's path to the message.
+        i = np.asarray(self.intensity, dtype=float)
+        if i.shape != (3,) or not np.all(np.isfinite(i)) or np.any(i <= 0):
+            raise SceneError(f"lcd intensity must be 3 finite numbers > 0 (radiance of a cell driven "
+                             f"at 1.0 per RGB channel), got {_fmt(self.intensity)}")
+        if self.gamma is not None and not (np.isfinite(self.gamma) and self.gamma > 0):
+            raise SceneError(f"lcd gamma must be a finite number > 0, got {self.gamma}")
+        if self.color_matrix is not None:
+            m = np.asarray(self.color_matrix, dtype=float)
+            if m.shape != (3, 3) or not np.all(np.isfinite(m)):
+                raise SceneError(f"lcd color_matrix must be 3x3 finite numbers, got {_fmt(self.color_matrix)}")
+        if self.decay_cos_power is not None and not (np.isfinite(self.decay_cos_power) and self.decay_cos_power >= 0):
+            raise SceneError(f"lcd decay_cos_power must be a finite number >= 0, got {self.decay_cos_power}")
+        if self.decay_gradient is not None:
+            g = np.asarray(self.decay_gradient, dtype=float)
+            if g.shape != (2,) or not np.all(np.isfinite(g)):
+                raise SceneError("lcd decay_gradient must be 2 finite numbers (gx, gy), got "
+                                 f"{_fmt(self.decay_gradient)}")
+
     @property
     def has_decay(self) -> bool:
         """Whether the scene models any emission decay (angular or positional)."""
@@ -93,8 +114,14 @@ class LcdGeometry:
         return self.origin + uv[..., :1] * self.edge_u + uv[..., 1:2] * self.edge_v
 
 
+def _fmt(v: object) -> str:
+    """A display-model value for a message: numbers as written, nested sequences flattened."""
+    a = np.asarray(v, dtype=float).reshape(-1)
+    return "(" + ", ".join(f"{x:g}" for x in a) + ")" if a.size != 1 else f"{a[0]:g}"
+
+
 def _to_tuple3(v: object, name: str, path: Path) -> tuple[float, float, float]:
-    a = np.atleast_1d(np.asarray(v, dtype=float))
+    a = _numbers(v, name, path)
     if a.size == 1:
         a = np.repeat(a, 3)
     if a.size != 3 or not np.all(np.isfinite(a)):
@@ -145,9 +172,7 @@ class Rig:
                 raise SceneError(f"{path}: the {what} must be a rectangle, not {shape.type!r}")
 
         em = lcd.child("emitter")
-        cells = (int(em.props.get("cells_y", 32)), int(em.props.get("cells_x", 32)))
-        if min(cells) < 1:
-            raise SceneError(f"{path}: the LCD needs at least one cell, got {cells}")
+        cells = (_cell_count(em, "cells_y", path), _cell_count(em, "cells_x", path))
         display = _display_model(em, path)
 
         film = sensor.child("film")
@@ -174,6 +199,12 @@ class Rig:
 
     def _check_geometry(self) -> None:
         c = self.corners_np()
+        if not np.all(np.isfinite(c)):
+            raise SceneError(f"{self.source}: the LCD's corners are not finite (check its to_world transform)")
+        eu, ev = np.linalg.norm(c[1] - c[0]), np.linalg.norm(c[3] - c[0])
+        if eu <= 0 or ev <= 0 or np.linalg.norm(np.cross(c[1] - c[0], c[3] - c[0])) <= 1e-6 * eu * ev:
+            raise SceneError(f"{self.source}: the LCD must have a positive size, got {eu:.4g} m x {ev:.4g} m "
+                             "(check the <scale> of its to_world transform)")
         n = self.lcd_normal_np()
         centre = c.mean(axis=0)
         if np.dot(n, -centre) <= 0:
@@ -182,6 +213,11 @@ class Rig:
             raise SceneError(f"{self.source}: the LCD must lie entirely above the sample plane z = 0")
         if self.camera_position_np()[2] <= 0:
             raise SceneError(f"{self.source}: the camera must be above the sample plane z = 0")
+        if not 0 < self.camera_fov < 180:
+            raise SceneError(f"{self.source}: the camera's fov must be in (0, 180) degrees, got {self.camera_fov:g}")
+        if min(self.film_size) < 1:
+            raise SceneError(f"{self.source}: the film must be at least 1 x 1 px, got {self.film_size[1]} x "
+                             f"{self.film_size[0]}")
 
     # ---- geometry (numpy, float64) ------------------------------------------------------------
 
@@ -269,6 +305,8 @@ class Rig:
             raise PatternError(
                 f"patterns must be shaped (P, 3, {h}, {w}) or (B, P, 3, {h}, {w}) for this "
                 f"{h}x{w}-cell LCD, got {tuple(patterns.shape)}")
+        if patterns.shape[-4] == 0:
+            raise PatternError(f"patterns {tuple(patterns.shape)} hold no pattern: P must be >= 1")
         d = patterns.detach()
         bad = ~torch.isfinite(d)
         if bad.any():
@@ -304,26 +342,47 @@ def _find_shape(root: SceneNode, child_tag: str, child_type: str) -> SceneNode |
     return None
 
 
+def _cell_count(em: SceneNode, name: str, path: Path) -> int:
+    v = em.props.get(name, 32)
+    try:
+        n = float(v)
+    except (TypeError, ValueError):
+        n = float("nan")
+    if not (np.isfinite(n) and n == int(n) and n >= 1):
+        raise SceneError(f"{path}: lcd {name} must be a whole number of cells >= 1, got {v!r}")
+    return int(n)
+
+
+def _numbers(v: object, name: str, path: Path) -> np.ndarray:
+    try:
+        if isinstance(v, str):
+            return np.asarray([float(t) for t in v.replace(",", " ").split()])
+        return np.atleast_1d(np.asarray(v, dtype=float)).reshape(-1)
+    except (TypeError, ValueError):
+        raise SceneError(f"{path}: lcd {name} must be numbers, got {v!r}") from None
+
+
 def _display_model(em: SceneNode, path: Path) -> DisplayModel:
     p = em.props
     matrix = None
     if "color_matrix" in p:
-        vals = np.asarray([float(t) for t in str(p["color_matrix"]).replace(",", " ").split()])
+        vals = _numbers(p["color_matrix"], "color_matrix", path)
         if vals.size != 9:
             raise SceneError(f"{path}: lcd color_matrix needs 9 numbers, got {vals.size}")
         matrix = tuple(tuple(float(x) for x in row) for row in vals.reshape(3, 3))
     gradient = None
     if "decay_gradient" in p:
-        g = np.atleast_1d(np.asarray(p["decay_gradient"], dtype=float))
+        g = _numbers(p["decay_gradient"], "decay_gradient", path)
+        if g.size not in (2, 3) or (g.size == 3 and g[2] != 0):
+            raise SceneError(f"{path}: lcd decay_gradient needs (gx, gy) (a vector with z = 0), got {_fmt(g)}")
         gradient = (float(g[0]), float(g[1]))
-    gamma = float(p["gamma"]) if "gamma" in p else None
-    if gamma is not None and gamma <= 0:
-        raise SceneError(f"{path}: lcd gamma must be positive, got {gamma}")
-    k = float(p["decay_cos_power"]) if "decay_cos_power" in p else None
-    if k is not None and k < 0:
-        raise SceneError(f"{path}: lcd decay_cos_power must be >= 0, got {k}")
-    return DisplayModel(intensity=_to_tuple3(p.get("intensity", 1.0), "intensity", path),
-                        gamma=gamma, color_matrix=matrix, decay_cos_power=k, decay_gradient=gradient)
+    gamma = float(_numbers(p["gamma"], "gamma", path)[0]) if "gamma" in p else None
+    k = float(_numbers(p["decay_cos_power"], "decay_cos_power", path)[0]) if "decay_cos_power" in p else None
+    try:
+        return DisplayModel(intensity=_to_tuple3(p.get("intensity", 1.0), "intensity", path),
+                            gamma=gamma, color_matrix=matrix, decay_cos_power=k, decay_gradient=gradient)
+    except SceneError as e:
+        raise SceneError(f"{path}: {e}") from None
 
 
 def _sample_size(m: np.ndarray, path: Path) -> float:

@@ -38,11 +38,18 @@ class SceneNode:
         return next((c for c in self.children if c.tag == tag), None)
 
 
-def _floats(text: str, where: str) -> list[float]:
+def _floats(text: str, where: str, count: int | None = None) -> list[float]:
+    """The numbers in ``text``; all must be finite (no number in a scene means NaN or Inf), and
+    exactly ``count`` of them when given."""
     try:
-        return [float(t) for t in _NUM.split(text.strip()) if t]
+        vals = [float(t) for t in _NUM.split(text.strip()) if t]
     except ValueError as e:
         raise SceneError(f"{where}: cannot read numbers from {text!r}") from e
+    if not all(math.isfinite(v) for v in vals):
+        raise SceneError(f"{where}: numbers must be finite, got {text!r}")
+    if count is not None and len(vals) != count:
+        raise SceneError(f"{where}: expected {count} number{'s' if count > 1 else ''}, got {text!r}")
+    return vals
 
 
 def lookat_matrix(origin: np.ndarray, target: np.ndarray, up: np.ndarray) -> np.ndarray:
@@ -87,7 +94,7 @@ def _vec_attr(el: ET.Element, default: float, where: str) -> np.ndarray:
         if len(v) == 3:
             return np.array(v)
         raise SceneError(f"{where}: expected 1 or 3 numbers, got {len(v)}")
-    return np.array([float(el.attrib.get(k, default)) for k in "xyz"])
+    return np.array([_floats(el.attrib.get(k, str(default)), f"{where} {k}", 1)[0] for k in "xyz"])
 
 
 def _transform(el: ET.Element, where: str) -> np.ndarray:
@@ -101,11 +108,10 @@ def _transform(el: ET.Element, where: str) -> np.ndarray:
         elif op.tag == "scale":
             m = np.diag([*_vec_attr(op, 1.0, w), 1.0]) @ m
         elif op.tag == "rotate":
-            axis = _vec_attr(op, 0.0, w) if "value" in op.attrib else np.array(
-                [float(op.attrib.get(k, 0.0)) for k in "xyz"])
+            axis = _vec_attr(op, 0.0, w)
             if np.linalg.norm(axis) == 0:
                 raise SceneError(f"{w}: rotation axis is zero")
-            m = _rotation(axis, float(op.attrib.get("angle", 0.0))) @ m
+            m = _rotation(axis, _floats(op.attrib.get("angle", "0"), f"{w} angle", 1)[0]) @ m
         elif op.tag == "matrix":
             v = _floats(op.attrib.get("value", ""), w)
             if len(v) == 9:
@@ -138,16 +144,17 @@ def _parse_node(el: ET.Element, defaults: dict[str, str], path: Path) -> SceneNo
         if sub.tag == "transform":
             node.props[name or "to_world"] = _transform(sub, where)
         elif sub.tag in ("float",):
-            node.props[name] = _floats(attrs["value"], where)[0]
+            node.props[name] = _floats(attrs.get("value", ""), where, 1)[0]
         elif sub.tag == "integer":
+            text = _value(attrs, where)
             try:
-                node.props[name] = int(attrs["value"])
+                node.props[name] = int(text)
             except ValueError as e:
-                raise SceneError(f"{where}: not an integer: {attrs['value']!r}") from e
+                raise SceneError(f"{where}: not an integer: {text!r}") from e
         elif sub.tag == "boolean":
-            node.props[name] = attrs["value"].strip().lower() in ("true", "1", "yes")
+            node.props[name] = _value(attrs, where).strip().lower() in ("true", "1", "yes")
         elif sub.tag == "string":
-            node.props[name] = attrs["value"]
+            node.props[name] = _value(attrs, where)
         elif sub.tag in ("rgb", "point", "vector", "spectrum"):
             node.props[name] = _vec_attr(sub, 0.0, where)
         elif sub.tag in ("default", "ref"):
@@ -155,6 +162,12 @@ def _parse_node(el: ET.Element, defaults: dict[str, str], path: Path) -> SceneNo
         else:
             node.children.append(_parse_node(sub, defaults, path))
     return node
+
+
+def _value(attrs: dict[str, str], where: str) -> str:
+    if "value" not in attrs:
+        raise SceneError(f"{where}: no value attribute")
+    return attrs["value"]
 
 
 def _subst(value: str, defaults: dict[str, str], path: Path) -> str:
@@ -178,6 +191,10 @@ def load_scene_xml(path: str | Path, **overrides: object) -> SceneNode:
         raise SceneError(f"{path}: not a valid XML scene file ({e})") from e
     if root.tag != "scene":
         raise SceneError(f"{path}: the root element is <{root.tag}>, expected <scene>")
-    defaults = {d.attrib["name"]: d.attrib["value"] for d in root.iter("default")}
+    defaults = {}
+    for d in root.iter("default"):
+        if "name" not in d.attrib or "value" not in d.attrib:
+            raise SceneError(f"{path}: a <default> needs name and value attributes, got {d.attrib}")
+        defaults[d.attrib["name"]] = d.attrib["value"]
     defaults.update({k: str(v) for k, v in overrides.items()})
     return _parse_node(root, defaults, path)

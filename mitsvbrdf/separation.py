@@ -25,6 +25,7 @@ from torch import Tensor
 
 from .render.quadrature import QuadratureSettings, cell_kernels, chunk_size
 from .render.reference import diffuse_integrand
+from .errors import ImageError
 from .rig import Rig
 
 _KERNEL_CACHE: "weakref.WeakKeyDictionary[Rig, dict]" = weakref.WeakKeyDictionary()
@@ -86,10 +87,13 @@ def separate_specular(images: Tensor, patterns: Tensor, rig: Rig, *,
     batched = images.ndim == 5
     imgs = images if batched else images.unsqueeze(0)
     if imgs.ndim != 5 or imgs.shape[2] != 3:
-        raise ValueError(f"images must be (B, P, 3, H, W) or (P, 3, H, W), got {tuple(images.shape)}")
+        raise ImageError(f"images must be (B, P, 3, H, W) or (P, 3, H, W), got {tuple(images.shape)}")
     P = imgs.shape[1]
     if patterns.shape[-4] != P:
-        raise ValueError(f"{P} images but {patterns.shape[-4]} patterns")
+        raise ImageError(f"{P} images but {patterns.shape[-4]} patterns")
+    bad = int((~torch.isfinite(imgs.detach())).sum())
+    if bad:  # Eq. 5 would carry them into every pair's I^spec
+        raise ImageError(f"separate_specular: the images have {bad} NaN/Inf values")
     ld = diffuse_irradiance(patterns.to(imgs.device, imgs.dtype), rig, imgs.shape[-2:], settings=settings)
     if ld.ndim == 4:
         ld = ld.unsqueeze(0)

@@ -53,6 +53,18 @@ class LCDEmitter(mi.Emitter):
         self.matrix = _floats(props["color_matrix"], 9, "color_matrix") if "color_matrix" in props else None
         self.cos_power = float(props["decay_cos_power"]) if "decay_cos_power" in props else None
         self.gradient = _floats(props["decay_gradient"], 3, "decay_gradient")[:2] if "decay_gradient" in props else None
+        # The display model's contract (mitsvbrdf.rig.DisplayModel), for scenes loaded without the Rig.
+        import math
+        if not all(math.isfinite(v) and v > 0 for v in self.intensity):
+            raise ValueError(f"lcd: 'intensity' must be finite and > 0 per channel, got {list(self.intensity)}")
+        if self.gamma is not None and not (math.isfinite(self.gamma) and self.gamma > 0):
+            raise ValueError(f"lcd: 'gamma' must be finite and > 0, got {self.gamma}")
+        if self.matrix is not None and not all(math.isfinite(v) for v in self.matrix):
+            raise ValueError(f"lcd: 'color_matrix' must be finite, got {self.matrix}")
+        if self.cos_power is not None and not (math.isfinite(self.cos_power) and self.cos_power >= 0):
+            raise ValueError(f"lcd: 'decay_cos_power' must be finite and >= 0, got {self.cos_power}")
+        if self.gradient is not None and not all(math.isfinite(v) for v in self.gradient):
+            raise ValueError(f"lcd: 'decay_gradient' must be finite, got {self.gradient}")
         if "data" in props:
             self.data = props["data"]
         else:

@@ -32,6 +32,23 @@ def test_capture_into_an_existing_session_needs_resume(tmp_path, capsys):
     assert main(["capture", "--out", str(tmp_path), "--resume", *SIM]) == 0
 
 
+@pytest.mark.parametrize("change", [["--gain", "7"], ["--seed", "5"], ["--spp", "2"]])
+def test_capture_resume_with_another_frame_setting_is_one_line(tmp_path, capsys, change):
+    assert main(["capture", "--out", str(tmp_path), *SIM]) == 0
+    capsys.readouterr()
+    assert main(["capture", "--out", str(tmp_path), "--resume", *SIM, *change]) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and "cannot resume with different settings" in err[0] and change[0][2:] in err[0]
+
+
+def test_capture_resume_captures_a_deleted_raw_frame_again(tmp_path, capsys):
+    assert main(["capture", "--out", str(tmp_path), *SIM]) == 0
+    (tmp_path / "raw" / "L1_e0.exr").unlink()
+    assert main(["capture", "--out", str(tmp_path), "--resume", *SIM]) == 0
+    assert "raw/L1_e0.exr (missing)" in capsys.readouterr().out
+    assert (tmp_path / "raw" / "L1_e0.exr").is_file()
+
+
 def test_calibrate_display_writes_the_simulated_truth_into_the_scene(tmp_path, capsys):
     truth = write_display_model(SCENE, tmp_path / "truth.xml", gamma=2.2, intensity=(2.0, 1.8, 1.5))
     out = tmp_path / "calibrated.xml"
@@ -60,6 +77,17 @@ def test_calibrate_intrinsics_from_a_folder_of_checkerboard_photos(tmp_path):
     assert ms.Rig.from_scene(out).camera_fov == pytest.approx(rig.camera_fov, rel=0.01)
 
 
-def test_calibrate_intrinsics_without_enough_photos_is_refused(tmp_path):
-    with pytest.raises(SystemExit, match="at least 3"):
-        main(["calibrate", "intrinsics", "--views", str(tmp_path), "--out", str(tmp_path / "x.xml")])
+def test_calibrate_intrinsics_without_enough_photos_is_refused(tmp_path, capsys):
+    assert main(["calibrate", "intrinsics", "--views", str(tmp_path), "--out", str(tmp_path / "x.xml")]) == 2
+    assert "at least 3" in capsys.readouterr().err
+
+
+def test_ctrl_c_during_a_capture_exits_130_and_says_how_to_resume(tmp_path, capsys, monkeypatch):
+    from mitsvbrdf.capture import session
+
+    def interrupted(self, *a, **k):
+        raise KeyboardInterrupt
+
+    monkeypatch.setattr(session.CaptureSession, "run", interrupted)
+    assert main(["capture", "--out", str(tmp_path / "s"), *SIM]) == 130
+    assert "rerun with --resume" in capsys.readouterr().err

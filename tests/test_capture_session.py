@@ -50,6 +50,9 @@ class FailingCamera:
         self.left -= 1
         return self.inner.capture(exposure)
 
+    def frame_settings(self):  # the same camera, on a bad cable
+        return self.inner.frame_settings()
+
 
 # ---- devices ---------------------------------------------------------------------------------------
 
@@ -191,6 +194,71 @@ def test_resume_with_other_settings_is_refused(rig, pipeline, tmp_path):
     CaptureSession(tmp_path, pipeline, bracket(camera(rig))).run(progress=False)
     with pytest.raises(SessionError, match="exposures"):
         CaptureSession(tmp_path, pipeline, bracket(camera(rig), (1.0,))).run(resume=True, progress=False)
+
+
+def test_resume_with_another_gain_is_refused(rig, pipeline, tmp_path):
+    # The gain was not recorded: L0 stayed, L1-L4 came out brighter.
+    CaptureSession(tmp_path, pipeline, bracket(camera(rig))).run(progress=False)
+    with pytest.raises(SessionError, match="camera.gain: 4.0 then, 8.0 now"):
+        CaptureSession(tmp_path, pipeline, bracket(camera(rig, gain=8.0))).run(resume=True, progress=False)
+
+
+def test_every_written_file_is_recorded_with_its_size_and_checksum(rig, pipeline, tmp_path):
+    import hashlib
+
+    CaptureSession(tmp_path, pipeline, bracket(camera(rig))).run(progress=False)
+    files = json.loads((tmp_path / "session.json").read_text())["files"]
+    on_disk = {p.relative_to(tmp_path).as_posix() for p in tmp_path.rglob("*") if p.is_file()} - {"session.json"}
+    assert set(files) == on_disk
+    for rel, rec in files.items():
+        data = (tmp_path / rel).read_bytes()
+        assert rec == {"bytes": len(data), "sha256": hashlib.sha256(data).hexdigest()}
+
+
+def _delete(p):
+    p.unlink()
+
+
+def _truncate(p):
+    p.write_bytes(p.read_bytes()[: p.stat().st_size // 2])
+
+
+def _same_size_other_bytes(p):
+    b = bytearray(p.read_bytes())
+    b[-1] ^= 0xFF
+    p.write_bytes(bytes(b))
+
+
+@pytest.mark.parametrize("damage", [_delete, _truncate, _same_size_other_bytes],
+                         ids=["deleted", "truncated", "altered"])
+def test_a_damaged_raw_frame_is_captured_again_on_resume(rig, pipeline, tmp_path, damage):
+    whole = CaptureSession(tmp_path, pipeline, bracket(camera(rig))).run(progress=False)
+    damage(tmp_path / "raw" / "L2_e1.exr")
+    again = camera(rig)
+    session = CaptureSession(tmp_path, pipeline, bracket(again))
+    acq = session.run(resume=True, progress=False)
+    assert again.frames_taken == 1
+    assert [r.split(" ")[0] for r in session.recaptured] == ["raw/L2_e1.exr"]
+    assert torch.equal(acq.svbrdf.encoded(), whole.svbrdf.encoded())  # the simulated frame is the same frame
+
+
+@pytest.mark.parametrize("rel", ["radiance/L3.exr", "patterns/adaptive.npy", "lpdf.npy"])
+def test_a_damaged_derived_file_is_recomputed_without_new_frames(rig, pipeline, tmp_path, rel):
+    whole = CaptureSession(tmp_path, pipeline, bracket(camera(rig))).run(progress=False)
+    _truncate(tmp_path / rel)
+    again = camera(rig)
+    session = CaptureSession(tmp_path, pipeline, bracket(again))
+    acq = session.run(resume=True, progress=False)
+    assert again.frames_taken == 0 and session.recaptured == [f"{rel} (changed)"]
+    assert torch.equal(acq.svbrdf.encoded(), whole.svbrdf.encoded())
+
+
+def test_a_step_whose_pattern_file_changed_is_captured_again(rig, pipeline, tmp_path):
+    CaptureSession(tmp_path, pipeline, bracket(camera(rig))).run(progress=False)
+    np.save(tmp_path / "patterns" / "L1.npy", np.zeros((3, *rig.lcd_cells), np.float32))
+    again = camera(rig)
+    CaptureSession(tmp_path, pipeline, bracket(again)).run(resume=True, progress=False)
+    assert again.frames_taken == len(EXPOSURES)
 
 
 def test_resume_without_a_session_is_refused(rig, pipeline, tmp_path):

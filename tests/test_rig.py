@@ -172,3 +172,68 @@ def test_rig_geometry_matches_mitsubas_own_reading_of_the_scene():
     np.testing.assert_allclose(np.array(params["camera.to_world"].matrix.numpy()).reshape(4, 4), rig.camera_to_world, atol=1e-6)
     sample = np.array(params["sample.to_world"].matrix.numpy()).reshape(4, 4)
     np.testing.assert_allclose(np.diag(sample)[:2], [rig.sample_size / 2] * 2, atol=1e-7)
+
+
+INTENSITY = '<float name="intensity" value="1.0"/>'
+LCD_SCALE = '<scale x="0.045" y="0.045"/>'
+CELLS_X = '<integer name="cells_x" value="32"/>'
+
+# (what is broken, the edit of the default scene, words the message must contain)
+BROKEN_DISPLAY = [
+    ("zero-size LCD", (LCD_SCALE, '<scale x="0" y="0"/>'), "positive size"),
+    ("LCD of zero width", (LCD_SCALE, '<scale x="0" y="0.045"/>'), "positive size"),
+    ("zero cells", (CELLS_X, '<integer name="cells_x" value="0"/>'), "cells_x"),
+    ("fractional cells", (CELLS_X, '<float name="cells_x" value="2.5"/>'), "cells_x"),
+    ("zero intensity", (INTENSITY, '<float name="intensity" value="0"/>'), "intensity"),
+    ("negative intensity", (INTENSITY, '<float name="intensity" value="-1"/>'), "intensity"),
+    ("one dark channel", (INTENSITY, '<rgb name="intensity" value="1, 0, 1"/>'), "intensity"),
+    ("NaN intensity", (INTENSITY, '<float name="intensity" value="nan"/>'), "finite"),
+    ("zero gamma", (INTENSITY, INTENSITY + '<float name="gamma" value="0"/>'), "gamma"),
+    ("negative gamma", (INTENSITY, INTENSITY + '<float name="gamma" value="-2.2"/>'), "gamma"),
+    ("NaN in the colour matrix", (INTENSITY, INTENSITY + '<string name="color_matrix" value="1 0 0 0 nan 0 0 0 1"/>'),
+     "color_matrix"),
+    ("Inf in the colour matrix", (INTENSITY, INTENSITY + '<string name="color_matrix" value="1 0 0 0 1 0 0 0 inf"/>'),
+     "color_matrix"),
+    ("words in the colour matrix", (INTENSITY, INTENSITY + '<string name="color_matrix" value="one 0 0 0 1 0 0 0 1"/>'),
+     "color_matrix"),
+    ("negative decay power", (INTENSITY, INTENSITY + '<float name="decay_cos_power" value="-1"/>'), "decay_cos_power"),
+    ("infinite translation", ('<scale x="0.03" y="0.03"/>', '<scale x="0.03" y="0.03"/><translate x="inf"/>'),
+     "finite"),
+    ("float without a number", (INTENSITY, '<float name="intensity" value=""/>'), "expected 1 number"),
+    ("zero fov", ('<float name="fov" value="13"/>', '<float name="fov" value="0"/>'), "fov"),
+    ("empty film", ('<integer name="width" value="$resolution"/>', '<integer name="width" value="0"/>'), "film"),
+]
+
+
+@pytest.mark.parametrize("edit,words", [pytest.param(e, w, id=i) for i, e, w in BROKEN_DISPLAY])
+def test_broken_display_model_or_geometry_is_a_scene_error_naming_the_file(tmp_path, edit, words):
+    old, new = edit
+    assert old in SCENE.read_text()
+    path = _write(tmp_path, SCENE.read_text().replace(old, new, 1))
+    with pytest.raises(SceneError, match=words) as e:
+        ms.Rig.from_scene(path)
+    assert str(path) in str(e.value) and "\n" not in str(e.value)
+
+
+@pytest.mark.parametrize("change", [dict(intensity=(0.0, 1.0, 1.0)), dict(gamma=0.0), dict(gamma=float("nan")),
+                                    dict(color_matrix=((1, 0, 0), (0, float("inf"), 0), (0, 0, 1))),
+                                    dict(decay_cos_power=-0.5), dict(decay_gradient=(float("nan"), 0.0))],
+                         ids=["intensity", "gamma", "nan-gamma", "matrix", "decay", "gradient"])
+def test_display_model_made_in_code_meets_the_same_contract(rig, change):
+    with pytest.raises(SceneError, match=next(iter(change))):
+        rig.with_display(**change)
+
+
+@pytest.mark.mitsuba
+@pytest.mark.parametrize("params,words", [({"intensity": 0.0}, "intensity"), ({"intensity": -1.0}, "intensity"),
+                                          ({"gamma": 0.0}, "gamma"),
+                                          ({"color_matrix": "1 0 0 0 nan 0 0 0 1"}, "color_matrix"),
+                                          ({"decay_cos_power": -1.0}, "decay_cos_power")])
+def test_lcd_plugin_refuses_the_same_display_models(params, words):
+    from mitsvbrdf import backend
+    if backend.find_libllvm() is None:  # pragma: no cover - depends on the machine
+        pytest.skip("no libLLVM >= 16 for the LLVM backend")
+    import mitsvbrdf_plugins
+    mi = mitsvbrdf_plugins.register("llvm_ad_rgb")
+    with pytest.raises(Exception, match=words):
+        mi.load_dict({"type": "rectangle", "emitter": {"type": "lcd", **params}})

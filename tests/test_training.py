@@ -198,7 +198,7 @@ def test_pretrained_networks_with_wrong_names_are_refused(rig):
 
 
 def _params(out: Path) -> dict:
-    return torch.load(out / "checkpoint.pt", weights_only=False)["stage"]
+    return torch.load(out / "checkpoint.pt", weights_only=True)["stage"]
 
 
 def test_run_writes_checkpoint_metrics_plot_and_networks(tmp_path):
@@ -216,8 +216,8 @@ def test_resume_after_a_kill_reaches_the_same_parameters(tmp_path):
     train(cut, resume=True, progress=False)
     a, b = _params(tmp_path / "full"), _params(tmp_path / "cut")
     assert all(torch.equal(a[k], b[k]) for k in a)
-    la = [h["loss"] for h in torch.load(tmp_path / "full" / "checkpoint.pt", weights_only=False)["history"]]
-    lb = [h["loss"] for h in torch.load(tmp_path / "cut" / "checkpoint.pt", weights_only=False)["history"]]
+    la = [h["loss"] for h in torch.load(tmp_path / "full" / "checkpoint.pt", weights_only=True)["history"]]
+    lb = [h["loss"] for h in torch.load(tmp_path / "cut" / "checkpoint.pt", weights_only=True)["history"]]
     assert la == lb
 
 
@@ -231,10 +231,116 @@ def test_stage_without_its_pretrained_networks_is_a_clear_error(tmp_path):
         Trainer(tiny("stage1", tmp_path), progress=False)
 
 
-def test_sigterm_checkpoints_and_stops(tmp_path):
+FAST = ['render.method="ltc"', 'render.ltc_mode="prefiltered"', "data.size=8"]  # deterministic, < 1 s a run
+
+
+def _init_run(out: Path, steps: int = 2) -> object:
+    """The config of a finished ``steps``-step init run in ``out``."""
+    cfg = tiny("init", out, steps=steps, extra=FAST, initializer_width=4)
+    train(cfg, progress=False)
+    return cfg
+
+
+def test_training_into_a_finished_run_needs_resume_or_overwrite(tmp_path):
+    cfg = _init_run(tmp_path)
+    before = (tmp_path / "networks.pt").read_bytes()
+    with pytest.raises(TrainingError, match="--resume.*--overwrite"):
+        Trainer(cfg, progress=False)
+    assert (tmp_path / "networks.pt").read_bytes() == before
+
+
+def test_resume_and_overwrite_together_are_refused(tmp_path):
+    with pytest.raises(TrainingError, match="choose one"):
+        Trainer(tiny("init", tmp_path, extra=FAST, initializer_width=4), resume=True, overwrite=True, progress=False)
+
+
+def test_overwrite_starts_the_run_again_without_the_old_files(tmp_path):
+    cfg = _init_run(tmp_path)
+    t = Trainer(cfg, progress=False, overwrite=True, stop_after=1)
+    assert not any((tmp_path / f).exists() for f in ("networks.pt", "checkpoint.pt", "metrics.csv", "loss.png"))
+    t.run()
+    assert torch.load(tmp_path / "checkpoint.pt", weights_only=True)["step"] == 1
+
+
+@pytest.mark.parametrize("change", ["train.lr=0.5", 'render.method="reference"', "seed=7", "model.initializer_width=8",
+                                    "loss.maps=2.0", "data.size=16"])
+def test_resume_refuses_changed_settings_in_one_line(tmp_path, change):
+    _init_run(tmp_path)
+    cfg = tiny("init", tmp_path, steps=2, extra=[*FAST, change], initializer_width=4)
+    with pytest.raises(TrainingError, match=change.split("=")[0].replace(".", r"\.")) as e:
+        Trainer(cfg, resume=True, progress=False)
+    assert "\n" not in str(e.value)
+
+
+def test_resume_with_more_steps_continues_to_the_new_end_at_lr_min(tmp_path):
+    _init_run(tmp_path, steps=2)
+    cfg = tiny("init", tmp_path, steps=4, extra=FAST, initializer_width=4)
+    last = train(cfg, resume=True, progress=False)
+    assert last["step"] == 4
+    assert last["lr"] == pytest.approx(cfg.train.lr_min, abs=1e-12)
+
+
+def test_resume_refuses_fewer_steps_than_the_checkpoint_has(tmp_path):
+    _init_run(tmp_path, steps=2)
+    cfg = tiny("init", tmp_path, steps=1, extra=FAST, initializer_width=4)
+    with pytest.raises(TrainingError, match="at step 2"):
+        Trainer(cfg, resume=True, progress=False)
+
+
+def test_resume_refuses_a_truncated_checkpoint_in_one_line(tmp_path):
+    cfg = _init_run(tmp_path)
+    ck = tmp_path / "checkpoint.pt"
+    ck.write_bytes(ck.read_bytes()[: ck.stat().st_size // 2])
+    with pytest.raises(TrainingError, match="cannot be read") as e:
+        Trainer(cfg, resume=True, progress=False)
+    assert "\n" not in str(e.value)
+
+
+def test_resume_from_tensors_that_do_not_fit_the_networks_is_one_line(tmp_path):
+    # Same settings, other shapes (a checkpoint from another version of a network): 160 lines of
+    # load_state_dict before.
+    cfg = _init_run(tmp_path)
+    ck = torch.load(tmp_path / "checkpoint.pt", weights_only=True)
+    ck["stage"] = {k: torch.zeros(*v.shape[:-1], v.shape[-1] + 1) if v.ndim else v for k, v in ck["stage"].items()}
+    torch.save(ck, tmp_path / "checkpoint.pt")
+    with pytest.raises(TrainingError, match="does not fit these networks") as e:
+        Trainer(cfg, resume=True, progress=False)
+    assert "\n" not in str(e.value) and "more" in str(e.value)
+
+
+class _Payload:
+    """Unpickling this calls Path.touch(marker): code that runs when a pickle is read."""
+
+    def __init__(self, marker: Path):
+        self.marker = marker
+
+    def __reduce__(self):
+        return (Path.touch, (self.marker,))
+
+
+def test_resume_does_not_run_code_from_a_checkpoint(tmp_path):
+    cfg = _init_run(tmp_path)
+    ck = torch.load(tmp_path / "checkpoint.pt", weights_only=True)
+    marker = tmp_path / "payload-ran"
+    ck["history"].append({"step": _Payload(marker)})
+    torch.save(ck, tmp_path / "checkpoint.pt")
+    with pytest.raises(TrainingError, match="cannot be read"):
+        Trainer(cfg, resume=True, progress=False)
+    assert not marker.exists()
+
+
+def test_checkpoints_hold_only_tensors_numbers_and_strings(tmp_path):
+    _init_run(tmp_path)
+    ck = torch.load(tmp_path / "checkpoint.pt", weights_only=True)  # raises on anything else
+    assert ck["step"] == 2 and ck["config"]["stage"] == "init"
+
+
+@pytest.mark.parametrize("sig,code", [(signal.SIGINT, 130), (signal.SIGTERM, 143)], ids=["SIGINT", "SIGTERM"])
+def test_signal_checkpoints_exits_128_plus_its_number_and_lists_only_written_files(tmp_path, sig, code):
     cfg = tmp_path / "c.toml"
-    cfg.write_text(f'stage = "init"\nout = "{tmp_path / "run"}"\n[data]\nsize = 32\n[render]\nspp = 1\n'
-                   f'[model]\ninitializer_width = 4\n[train]\nsteps = 100000\nbatch = 2\ncheckpoint_every = 100000\n')
+    cfg.write_text(f'stage = "init"\nout = "{tmp_path / "run"}"\n[data]\nsize = 8\n'
+                   f'[render]\nmethod = "ltc"\nltc_mode = "prefiltered"\n[model]\ninitializer_width = 4\n'
+                   f'[train]\nsteps = 100000\nbatch = 2\ncheckpoint_every = 100000\n')
     proc = subprocess.Popen([sys.executable, "-m", "mitsvbrdf", "train", str(cfg), "--quiet"], cwd=ROOT,
                             stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True,
                             env={**os.environ, "OMP_NUM_THREADS": "1"})
@@ -244,15 +350,18 @@ def test_sigterm_checkpoints_and_stops(tmp_path):
         deadline = time.time() + 120
         while not (tmp_path / "run").exists() and time.time() < deadline:
             time.sleep(0.2)
-        time.sleep(3.0)  # a few steps
-        proc.send_signal(signal.SIGTERM)
+        time.sleep(1.0)  # a few steps
+        proc.send_signal(sig)
         out, _ = proc.communicate(timeout=120)
     finally:
         proc.kill()
-    assert proc.returncode == 0, out
+    assert proc.returncode == code, out
     assert "continue with --resume" in out
-    step = torch.load(tmp_path / "run" / "checkpoint.pt", weights_only=False)["step"]
+    step = torch.load(tmp_path / "run" / "checkpoint.pt", weights_only=True)["step"]
     assert 0 < step < 100000
+    listed = out.strip().splitlines()[-1].split("files in ")[-1].split(": ", 1)[1].split(", ")
+    assert "checkpoint.pt" in listed and "networks.pt" not in listed
+    assert all((tmp_path / "run" / f).is_file() for f in listed)
 
 
 DDP_SCRIPT = r"""

@@ -22,6 +22,7 @@ from typing import Callable
 import numpy as np
 import torch
 
+from ..errors import MitsvbrdfError
 from ..render import render
 from ..rig import Rig
 from ..svbrdf import SVBRDF
@@ -32,6 +33,10 @@ from .hdr import Response, calibrate_response
 from .session import BracketCapture
 
 CHART_LAYOUT = (4, 6)
+
+
+class CalibrationError(MitsvbrdfError):
+    """Captures that cannot determine what a calibration step fits (e.g. a too narrow bracket)."""
 
 
 @dataclass
@@ -86,8 +91,11 @@ def response_from_bracket(frames: np.ndarray, exposures: np.ndarray, *, points: 
     (pixel, channel) at evenly spaced quantiles of their summed values over the bracket (monotonic
     in radiance), so that the whole radiance range, and with it the code range, is represented."""
     f = np.asarray(frames, float).reshape(len(frames), -1)
+    if len(set(np.asarray(exposures, float).tolist())) < 2:
+        raise CalibrationError(f"the camera response needs a bracket of at least 2 different exposure times, "
+                               f"got {list(np.asarray(exposures, float))}")
     if f.min() > 0.1 or f.max() < 0.9:
-        raise ValueError(f"the bracket's values span only {f.min():.3f}..{f.max():.3f}: the response is only "
+        raise CalibrationError(f"the bracket's values span only {f.min():.3f}..{f.max():.3f}: the response is only "
                          "determined where codes were seen; extend the exposures until the shortest frame is "
                          "dark (below 0.1) and the longest bright (above 0.9)")
     order = np.argsort(f.sum(0), kind="stable")

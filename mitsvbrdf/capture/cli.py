@@ -9,17 +9,38 @@ from __future__ import annotations
 
 import argparse
 import json
+import sys
 from pathlib import Path
 
 import numpy as np
 
+from ..errors import MitsvbrdfError
 
-def _floats(text: str, what: str) -> tuple[float, ...]:
+
+def exposure_times(text: str, what: str = "--exposures", at_least: int = 1) -> tuple[float, ...]:
+    """Comma-separated exposure times in seconds: finite, > 0, and ``at_least`` distinct ones."""
     try:
         vals = tuple(float(v) for v in text.split(","))
     except ValueError:
-        raise argparse.ArgumentTypeError(f"{what} must be comma-separated numbers, got {text!r}") from None
+        raise MitsvbrdfError(f"{what} must be comma-separated seconds, e.g. 0.01,0.1,1; got {text!r}") from None
+    bad = [v for v in vals if not (np.isfinite(v) and v > 0)]
+    if bad:
+        raise MitsvbrdfError(f"{what} must all be positive, finite seconds; got {text!r}")
+    if len(set(vals)) < at_least:
+        raise MitsvbrdfError(f"{what} needs at least {at_least} different exposure times here, got {text!r}")
     return vals
+
+
+def check_device_options(args, exposures_needed: int = 1) -> tuple[float, ...]:
+    """Check the numbers of the device options before any device is opened; returns the exposures."""
+    from ..checks import check_float, check_int, check_seed
+
+    check_int("--spp", args.spp, 1)
+    check_seed("--seed", args.seed)
+    check_float("--gain", args.gain, 0.0, low_open=True)
+    check_int("--resolution", args.resolution, 1)
+    check_float("--camera-timeout", args.camera_timeout, 0.0, low_open=True)
+    return exposure_times(args.exposures, at_least=exposures_needed)
 
 
 def add_device_options(p: argparse.ArgumentParser) -> None:
@@ -50,9 +71,13 @@ def _devices(args, rig, material):
     response, matrix = read_camera_calibration(args.scene) if args.scene else (None, None)
     ctl = None
     if args.controller:
-        from .controller import SerialController
+        from .controller import ControllerError, SerialController
+        from .devices import DeviceError
 
-        ctl = SerialController(args.controller)
+        try:
+            ctl = SerialController(args.controller)
+        except ControllerError as e:
+            raise DeviceError(f"--controller {args.controller}: {e}") from e
     if args.simulate:
         truth_scene = args.truth_scene or args.scene
         truth = Rig.from_scene(truth_scene)
@@ -62,7 +87,7 @@ def _devices(args, rig, material):
         cam = TriggeredCamera(sim, ctl) if ctl else sim
         return sim, cam, response, matrix, ctl
     if not args.camera_folder:
-        raise SystemExit("mitsvbrdf: error: give --simulate MATERIAL or a real camera (--camera-folder)")
+        raise MitsvbrdfError("give --simulate MATERIAL or a real camera (--camera-folder)")
     cam = FileDropCamera(args.camera_folder, trigger=controller_trigger(ctl) if ctl else None,
                          timeout=args.camera_timeout, linear=args.camera_linear)
     display = WindowDisplay(rig.lcd_cells) if args.display == "window" else ImageFileDisplay(args.display, rig.lcd_cells)
@@ -77,11 +102,12 @@ def _bracket(args, rig, display, cam, response, matrix, raw_only: bool = False):
     if not cam.rectified:
         model = CameraModel.from_rig(rig)
         rectify = lambda frame: model.rectify(frame, rig.sample_size, args.resolution)  # noqa: E731
-    return BracketCapture(display, cam, _floats(args.exposures, "--exposures"), response=response,
+    return BracketCapture(display, cam, exposure_times(args.exposures), response=response,
                           rectify=rectify, color_matrix=matrix, raw_only=raw_only)
 
 
 def cmd_capture(args: argparse.Namespace) -> int:
+    from ..checks import check_out_dir
     from ..cli import _resize_svbrdf
     from ..demo import DEFAULT_NETWORKS, load_pipeline
     from ..rig import Rig
@@ -90,8 +116,12 @@ def cmd_capture(args: argparse.Namespace) -> int:
     from .devices import DeviceError
     from .session import CaptureSession
 
+    check_device_options(args)
+    check_out_dir("--out", args.out)
     rig = Rig.from_scene(args.scene)
     networks = args.networks or str(DEFAULT_NETWORKS)
+    pipeline = load_pipeline(networks, rig)
+    pipeline.check_resolution(args.resolution, "--resolution")  # before the first frame
     material = _resize_svbrdf(SVBRDF.load(args.simulate), args.resolution) if args.simulate else None
     display, cam, response, matrix, ctl = _devices(args, rig, material)
     try:
@@ -100,24 +130,34 @@ def cmd_capture(args: argparse.Namespace) -> int:
                     "networks": str(Path(networks).resolve()), "resolution": args.resolution}
         if args.simulate:
             settings.update(simulate=str(Path(args.simulate).resolve()), spp=args.spp, seed=args.seed)
-        session = CaptureSession(args.out, load_pipeline(networks, rig), capture, settings)
+        session = CaptureSession(args.out, pipeline, capture, settings)
         session.run(resume=args.resume, progress=not args.quiet)
     except ControllerError as e:
         raise DeviceError(f"{e}; every frame so far is in {args.out}: fix the link and rerun with --resume") from e
+    except KeyboardInterrupt:
+        print(f"\nmitsvbrdf: interrupted; every frame so far is in {args.out}: rerun with --resume", file=sys.stderr)
+        return 130
     finally:
         if ctl is not None:
             ctl.close()
+    if session.recaptured:
+        print(f"redone because the recorded files were missing or changed: {', '.join(session.recaptured)}")
     print(f"session complete in {args.out}: maps.png, maps.exr, raw/, radiance/, session.json")
     return 0
 
 
 def cmd_calibrate(args: argparse.Namespace) -> int:
+    from ..checks import check_float, check_out_file
     from ..rig import Rig
     from . import calibrate as cal
     from .display import write_display_model
     from .geometry import write_lcd_pose
     from .scene_file import write_camera_calibration
 
+    check_out_file("--out", args.out)
+    if args.step != "intrinsics":
+        check_device_options(args, exposures_needed=2 if args.step == "response" else 1)
+        check_float("--albedo", args.albedo, 0.0, 1.0, low_open=True)
     scene = args.scene or str(Path(__file__).resolve().parents[2] / "scenes" / "lcd_rig.xml")
     args.scene = scene
     rig = Rig.from_scene(scene)
@@ -159,17 +199,23 @@ def cmd_calibrate(args: argparse.Namespace) -> int:
 
 def _calibrate_intrinsics(args, rig) -> int:
     from .. import imageio
+    from ..checks import check_float
     from .camera import calibrate_intrinsics, checkerboard_points, find_checkerboard_corners, write_camera_intrinsics
 
     if not args.views:
-        raise SystemExit("mitsvbrdf: error: calibrate intrinsics needs --views DIR of checkerboard photos")
-    files = sorted(p for p in Path(args.views).iterdir() if p.suffix.lower() in imageio.READ_SUFFIXES)
-    if len(files) < 3:
-        raise SystemExit(f"mitsvbrdf: error: {args.views}: need at least 3 checkerboard photos, found {len(files)}")
+        raise MitsvbrdfError("calibrate intrinsics needs --views DIR of checkerboard photos")
+    if not Path(args.views).is_dir():
+        raise MitsvbrdfError(f"--views {args.views!r} is not a folder")
+    check_float("--square", args.square, 0.0, low_open=True)
     try:
         inner = tuple(int(v) for v in args.inner.lower().split("x"))
     except ValueError:
-        raise SystemExit(f"mitsvbrdf: error: --inner must be ROWSxCOLS inner corners, got {args.inner!r}") from None
+        inner = ()
+    if len(inner) != 2 or min(inner) < 2:
+        raise MitsvbrdfError(f"--inner must be ROWSxCOLS inner corners, each >= 2, got {args.inner!r}")
+    files = sorted(p for p in Path(args.views).iterdir() if p.suffix.lower() in imageio.READ_SUFFIXES)
+    if len(files) < 3:
+        raise MitsvbrdfError(f"{args.views}: need at least 3 checkerboard photos, found {len(files)}")
     points, size = [], None
     for f in files:
         img = imageio.read_image(f)

@@ -44,6 +44,18 @@ class DeviceError(MitsvbrdfError):
     """A device did not deliver (no frame in time, an unreadable frame, no display)."""
 
 
+def rig_digest(rig: Rig) -> str:
+    """sha256 of what a rig contributes to an image: geometry, cells and display model."""
+    import dataclasses
+    import hashlib
+    import json
+
+    data = {"camera_to_world": np.asarray(rig.camera_to_world).tolist(), "fov": rig.camera_fov,
+            "lcd_to_world": np.asarray(rig.lcd_to_world).tolist(), "cells": list(rig.lcd_cells),
+            "sample_size": rig.sample_size, "display": dataclasses.asdict(rig.display)}
+    return hashlib.sha256(json.dumps(data, sort_keys=True, default=list).encode()).hexdigest()
+
+
 @runtime_checkable
 class Display(Protocol):
     cells: tuple[int, int]
@@ -106,6 +118,26 @@ class SimulatedRig:
         self.linear = response is None
         self._pattern: np.ndarray | None = None
         self.frames_taken = 0
+
+    def frame_settings(self) -> dict:
+        """Everything besides the shown pattern and the exposure that decides this camera's frames
+        (JSON data; a capture session stores it and refuses to resume when it changed)."""
+        import dataclasses
+        import hashlib
+
+        def digest(*arrays) -> str:
+            h = hashlib.sha256()
+            for a in arrays:
+                h.update(np.ascontiguousarray(np.asarray(a, np.float64)).tobytes())
+            return h.hexdigest()
+
+        r = self.rig
+        return {"gain": self.gain, "method": self.method, "spp": self.spp, "seed": self.seed,
+                "noise": None if self.noise is None else dataclasses.asdict(self.noise), "levels": self.levels,
+                "response_sha256": None if self.response is None else digest(self.response.log_exposure),
+                "color_matrix": None if self.color_matrix is None else self.color_matrix.tolist(),
+                "material_sha256": digest(self.svbrdf.encoded().detach().cpu().numpy()),
+                "rig_sha256": rig_digest(r)}
 
     def place(self, svbrdf: SVBRDF) -> None:
         """Put another material (a calibration target) on the sample."""
@@ -273,3 +305,8 @@ class TriggeredCamera:
     def capture(self, exposure: float) -> np.ndarray:
         controller_trigger(self.controller)(exposure)
         return self.camera.capture(exposure)
+
+    def frame_settings(self) -> dict:
+        """The fired camera's frame settings (see :meth:`SimulatedRig.frame_settings`), if it has any."""
+        inner = getattr(self.camera, "frame_settings", None)
+        return inner() if inner is not None else {}

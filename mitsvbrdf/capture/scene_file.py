@@ -18,6 +18,7 @@ from typing import Callable
 
 import numpy as np
 
+from ..checks import check_out_file
 from ..errors import SceneError
 from .hdr import Response
 
@@ -72,19 +73,25 @@ def write_camera_calibration(scene: str | Path, out: str | Path, *, response: Re
                              color_matrix: np.ndarray | None = None) -> Path:
     """Copy ``scene`` to ``out`` with the camera's response (saved beside ``out`` as
     ``<out stem>.camera_response.npy``) and/or colour matrix recorded."""
-    out = Path(out)
+    out = check_out_file("out", out)  # before the response file is written beside it
     values = {}
-    if response is not None:
-        npy = out.with_name(out.stem + ".camera_response.npy")
-        out.parent.mkdir(parents=True, exist_ok=True)
-        np.save(npy, response.log_exposure)
-        values["camera_response"] = npy.name
     if color_matrix is not None:
         m = np.asarray(color_matrix, float)
         if m.shape != (3, 3) or not np.isfinite(m).all():
             raise ValueError(f"a colour matrix is 3x3 and finite, got {m.shape}")
         values["camera_color_matrix"] = " ".join(f"{v:.9g}" for v in m.ravel())
-    return edit_scene(scene, out, lambda root: set_defaults(root, **values))
+    npy = None
+    if response is not None:
+        npy = out.with_name(out.stem + ".camera_response.npy")
+        out.parent.mkdir(parents=True, exist_ok=True)
+        np.save(npy, response.log_exposure)
+        values["camera_response"] = npy.name
+    try:
+        return edit_scene(scene, out, lambda root: set_defaults(root, **values))
+    except BaseException:
+        if npy is not None:  # no response file without the scene that names it
+            npy.unlink(missing_ok=True)
+        raise
 
 
 def read_camera_calibration(scene: str | Path) -> tuple[Response | None, np.ndarray | None]:

@@ -17,10 +17,21 @@ pulled cable loses at most the frame in flight):
 
 ``run(resume=True)`` reads the manifest back, checks that the settings agree, and continues
 from the first missing frame; the reconstruction is then the same as an uninterrupted session's.
+
+The manifest's settings hold everything that decides the frames besides the patterns: the
+exposures, the camera's response and colour matrix, a digest of the rig and of the networks,
+whatever the caller adds (the scene and networks files, the resolution) and, for cameras that
+report them (``frame_settings()``, e.g. the simulated rig's gain, noise, seed and material), the
+camera's own settings. Its ``files`` table holds the size and sha256 of every file the session
+wrote. On resume every recorded file is checked against it: a raw frame that is missing or
+changed is captured again (and that step's radiance merged again), a step whose pattern file is
+not the pattern to show is captured again, and derived files (radiance, prediction) that do not
+match are recomputed; ``recaptured`` lists what was redone.
 """
 
 from __future__ import annotations
 
+import hashlib
 import json
 import os
 from dataclasses import dataclass
@@ -37,11 +48,25 @@ from .devices import Camera, Display
 from .hdr import Response, merge_hdr
 
 MANIFEST = "session.json"
-VERSION = 1
+VERSION = 2  # 2: the files table (size and sha256 of every file) and the camera's frame settings
 
 
 class SessionError(MitsvbrdfError):
     """A session folder that cannot be started or resumed as asked."""
+
+
+def _sha256(data: bytes) -> str:
+    return hashlib.sha256(data).hexdigest()
+
+
+def _state_digest(module: torch.nn.Module) -> str:
+    """sha256 of a module's parameters and buffers (names, shapes and values)."""
+    h = hashlib.sha256()
+    for name, t in sorted(module.state_dict().items()):
+        h.update(name.encode())
+        h.update(str(tuple(t.shape)).encode())
+        h.update(t.detach().cpu().contiguous().numpy().tobytes())
+    return h.hexdigest()
 
 
 def merge_frames(frames: np.ndarray, exposures: np.ndarray, response: Response | None, *,
@@ -96,14 +121,16 @@ class BracketCapture:
 
     def __post_init__(self):
         self.exposures = tuple(float(t) for t in self.exposures)
-        if not self.exposures or min(self.exposures) <= 0:
-            raise ValueError(f"exposures must be positive seconds, got {self.exposures}")
+        if not self.exposures or not all(np.isfinite(t) and t > 0 for t in self.exposures):
+            raise SessionError(f"exposures must be positive seconds, got {self.exposures}")
         if self.raw_only:
             return
         if not self.camera.linear and self.response is None:
-            raise ValueError("this camera's frames are not linear: give its response (mitsvbrdf calibrate response)")
+            raise SessionError("this camera's frames are not linear: give its response (mitsvbrdf calibrate "
+                               "response), or --camera-linear for RAW/EXR frames")
         if not self.camera.rectified and self.rectify is None:
-            raise ValueError("this camera's frames are camera views: give a rectification onto the sample's texel grid")
+            raise SessionError("this camera's frames are camera views: give a rectification onto the sample's "
+                               "texel grid")
 
     def frame(self, exposure: float) -> np.ndarray:
         """One raw frame (H, W, 3) float32 at ``exposure`` seconds of what is shown."""
@@ -147,28 +174,58 @@ class CaptureSession:
     """
 
     def __init__(self, folder: str | Path, pipeline, capture: BracketCapture, settings: dict | None = None):
+        from .devices import rig_digest
+
         self.folder, self.pipeline, self.capture = Path(folder), pipeline, capture
-        self.settings = {"exposures": list(capture.exposures), "linear": bool(capture.camera.linear),
-                         "lcd_cells": list(pipeline.rig.lcd_cells), **(settings or {})}
+        cam = capture.camera
+        linear = bool(cam.linear)
+        response = None if linear or capture.response is None else _sha256(
+            np.ascontiguousarray(capture.response.log_exposure, np.float64).tobytes())
+        frame = getattr(cam, "frame_settings", None)
+        settings = {"exposures": list(capture.exposures), "linear": linear, "lcd_cells": list(pipeline.rig.lcd_cells),
+                    "response_sha256": response,
+                    "color_matrix": None if capture.color_matrix is None else np.asarray(capture.color_matrix).tolist(),
+                    "rig_sha256": rig_digest(pipeline.rig), "networks_sha256": _state_digest(pipeline),
+                    **{f"camera.{k}": v for k, v in (frame() if frame is not None else {}).items()},
+                    **(settings or {})}
+        # as the manifest will read it back (tuples become lists), so that a comparison is exact
+        self.settings = json.loads(json.dumps(settings))
         self.manifest: dict = {}
+        self.recaptured: list[str] = []  # files redone on resume because they were missing or changed
 
     # ---- files ----------------------------------------------------------------------------------
 
     def _path(self, rel: str) -> Path:
         return self.folder / rel
 
-    def _save(self, rel: str, write: Callable[[Path], None]) -> str:
-        """Write through a temporary file renamed into place (never a half-written file)."""
+    def _save(self, rel: str, write: Callable[[Path], None], record: bool = True) -> str:
+        """Write through a temporary file renamed into place (never a half-written file), and
+        record its size and sha256 in the manifest's files table."""
         path = self._path(rel)
         path.parent.mkdir(parents=True, exist_ok=True)
         tmp = path.with_name(".tmp-" + path.name)
         write(tmp)
+        if record:
+            data = tmp.read_bytes()
+            self.manifest.setdefault("files", {})[rel] = {"bytes": len(data), "sha256": _sha256(data)}
         os.replace(tmp, path)
         return rel
 
     def _commit(self) -> None:
         text = json.dumps(self.manifest, indent=2)
-        self._save(MANIFEST, lambda p: p.write_text(text))
+        self._save(MANIFEST, lambda p: p.write_text(text), record=False)
+
+    def _intact(self, rel: str | None) -> bool:
+        """Whether ``rel`` is on disk with the size and sha256 recorded when it was written."""
+        if rel is None:
+            return False
+        rec, path = self.manifest.get("files", {}).get(rel), self._path(rel)
+        if rec is None or not path.is_file() or path.stat().st_size != rec["bytes"]:
+            return False
+        return _sha256(path.read_bytes()) == rec["sha256"]
+
+    def _redo(self, rel: str) -> None:
+        self.recaptured.append(f"{rel} ({'changed' if self._path(rel).exists() else 'missing'})")
 
     def _open(self, resume: bool) -> None:
         path = self._path(MANIFEST)
@@ -179,7 +236,7 @@ class CaptureSession:
             if resume:
                 raise SessionError(f"{self.folder}: nothing to resume (no {MANIFEST})")
             self.folder.mkdir(parents=True, exist_ok=True)
-            self.manifest = {"version": VERSION, "settings": self.settings, "steps": {}, "done": False}
+            self.manifest = {"version": VERSION, "settings": self.settings, "steps": {}, "files": {}, "done": False}
             self._commit()
             return
         try:
@@ -187,7 +244,8 @@ class CaptureSession:
         except (OSError, json.JSONDecodeError) as e:
             raise SessionError(f"{path}: unreadable manifest ({e})") from e
         if self.manifest.get("version") != VERSION:
-            raise SessionError(f"{path}: session format {self.manifest.get('version')!r}, this version reads {VERSION}")
+            raise SessionError(f"{path}: session format {self.manifest.get('version')!r}, this version reads {VERSION} "
+                               "(format 1 has no checksums to verify its frames by: start a new session)")
         old = self.manifest.get("settings", {})
         diff = sorted(k for k in set(old) | set(self.settings) if old.get(k) != self.settings.get(k))
         if diff:
@@ -197,32 +255,51 @@ class CaptureSession:
     # ---- the acquisition --------------------------------------------------------------------------
 
     def _step(self, k: int, pattern: np.ndarray) -> np.ndarray:
-        """Capture (or read back) pattern k's bracket and radiance; returns (3, H, W)."""
+        """Capture (or read back) pattern k's bracket and radiance; returns (3, H, W). Frames on
+        disk are used only when they are the recorded files and were taken under ``pattern``."""
         name = f"L{k}"
-        step = self.manifest["steps"].setdefault(name, {"frames": {}})
-        if "pattern" not in step:
+        steps = self.manifest["steps"]
+        step = steps.get(name)
+        if step is not None and not self._shows(step, pattern):
+            # taken under another pattern (or one whose file changed): these frames cannot serve
+            self.recaptured.append(f"{name} (its frames were not taken under this pattern)")
+            step = None
+        if step is None:
+            step = steps[name] = {"frames": {}}
             step["pattern"] = self._save(f"patterns/{name}.npy", lambda p: np.save(p, pattern))
             self._commit()
-        if "radiance" in step:
-            return imageio.read_image(self._path(step["radiance"])).transpose(2, 0, 1).astype(np.float32)
         frames, shown = [], False
         for e, t in enumerate(self.capture.exposures):
             rel = step["frames"].get(str(e))
-            if rel is not None and self._path(rel).exists():
+            if self._intact(rel):
                 frames.append(imageio.read_image(self._path(rel)).astype(np.float32))
                 continue
+            if rel is not None:
+                self._redo(rel)
             if not shown:
                 self.capture.display.show(pattern)
                 shown = True
             f = self.capture.frame(t)
             step["frames"][str(e)] = self._save(f"raw/{name}_e{e}.exr", lambda p: imageio.write_exr(p, f))
+            step.pop("radiance", None)  # merged from other frames
             self._commit()  # the frame is safe from here on
             frames.append(f)
+        if self._intact(step.get("radiance")):
+            # contiguous like a fresh merge: the networks' convolutions round differently on strided input
+            rad = imageio.read_image(self._path(step["radiance"])).transpose(2, 0, 1)
+            return np.ascontiguousarray(rad, dtype=np.float32)
+        if "radiance" in step:
+            self._redo(step["radiance"])
         rad, counts = self.capture.radiance(frames)
         step["radiance"] = self._save(f"radiance/{name}.exr", lambda p: imageio.write_exr(p, rad.transpose(1, 2, 0)))
         step.update(counts)
         self._commit()
         return rad
+
+    def _shows(self, step: dict, pattern: np.ndarray) -> bool:
+        """Whether the step's recorded pattern file is intact and holds ``pattern``."""
+        rel = step.get("pattern")
+        return self._intact(rel) and np.array_equal(np.load(self._path(rel), allow_pickle=False), pattern)
 
     def run(self, *, resume: bool = False, progress: bool = True):
         """Run (or continue) the session; returns the :class:`~mitsvbrdf.pipeline.Acquisition`."""
@@ -238,6 +315,13 @@ class CaptureSession:
         l0 = pipe.l0.cpu().numpy()
         i0 = torch.from_numpy(self._step(0, l0))
         bar.update(1)
+        pred = self.manifest.get("prediction")
+        if pred is not None and not all(self._intact(rel) for rel in pred.values()):
+            # predicted again from I_0; a step shown a pattern that now differs is captured again
+            for rel in pred.values():
+                if not self._intact(rel):
+                    self._redo(rel)
+            del self.manifest["prediction"]
         if "prediction" not in self.manifest:
             adaptive, lpdf, initial = pipe.predict_patterns(i0[None])
             self.manifest["prediction"] = {

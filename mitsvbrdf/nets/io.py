@@ -62,8 +62,9 @@ def read_network_file(path: str | Path, what: str = "network", hint: str = ""):
         raise NetworkFileError(f"{path}: no such {what} file{hint}")
     try:
         return torch.load(path, map_location="cpu", weights_only=True)
-    except Exception as e:
-        raise NetworkFileError(f"{path}: cannot read a {what} from it ({e})") from e
+    except Exception as e:  # torch's messages run over many lines: the first says what went wrong
+        first = str(e).strip().splitlines()[0] if str(e).strip() else type(e).__name__
+        raise NetworkFileError(f"{path}: cannot read a {what} from it ({type(e).__name__}: {first})") from e
 
 
 def load_network(path: str | Path, expect: type[nn.Module] | None = None) -> nn.Module:

@@ -21,7 +21,8 @@ from pathlib import Path
 import torch
 from torch import Tensor
 
-from ..errors import PatternError
+from ..checks import SEED_MAX, check_int, check_seed
+from ..errors import MitsvbrdfError, PatternError
 from ..rig import Rig
 from .control_variate import control_variate
 
@@ -63,8 +64,12 @@ def render_mitsuba(svbrdf, patterns: Tensor, rig: Rig, *, spp: int = 64, seed: i
     Returns:
         (B, P, 3, H, W) float32 radiance, differentiable w.r.t. patterns and maps.
     """
-    if spp < 1:
-        raise ValueError(f"spp must be >= 1, got {spp}")
+    check_int("spp", spp, 1)
+    check_seed("seed", seed, svbrdf.batch_size)
+    lanes = svbrdf.batch_size * svbrdf.resolution[0] * svbrdf.resolution[1] * spp
+    if lanes > SEED_MAX:  # one UInt32 lane index per (material, texel, sample)
+        raise MitsvbrdfError(f"spp {spp} x {svbrdf.batch_size} x {svbrdf.resolution[0]} x {svbrdf.resolution[1]} "
+                             f"texels is {lanes} samples, more than one pass can index (2^32 - 1); lower spp")
     device = svbrdf.device
     if patterns.device != device:
         raise PatternError(f"patterns are on {patterns.device}, the maps on {device}; put both on one device")

@@ -43,6 +43,7 @@ import torch
 from torch import Tensor
 
 from ..brdf import ggx_ndf, sample_vndf_local, smith_ggx_g1, tangent_frame
+from ..errors import MitsvbrdfError
 from ..rig import DisplayModel, LcdGeometry
 
 
@@ -100,8 +101,8 @@ class QuadratureSettings:
     max_elements: int = 1 << 21
 
     def __post_init__(self):
-        if self.cell_order < 1 or self.lobe_grid < 0 or self.window <= 0:
-            raise ValueError(f"need cell_order >= 1, lobe_grid >= 0, window > 0, got {self}")
+        if self.cell_order < 1 or self.lobe_grid < 0 or not self.window > 0 or self.max_elements < 1:
+            raise MitsvbrdfError(f"need cell_order >= 1, lobe_grid >= 0, window > 0, max_elements >= 1, got {self}")
 
     def denser(self) -> "QuadratureSettings":
         """4x the points of both rules (2x per axis): the convergence check of the benchmark."""
@@ -157,10 +158,18 @@ def lobe_share(d: LocalDirections, omega: Tensor, window: float) -> Tensor:
 
     For rough lobes l >> spacing everywhere and w_H ~ 0; for near-mirror lobes the lobe rule owns
     the unresolvable core and the light rule the smooth tails.
+
+    It is evaluated as ``s^2 / (s^2 + l^4)``, s = window^2 omega_h, which is the same number but
+    has no division by ``omega``: directions that miss the LCD have omega = 0, and the quotient
+    form overflowed there (1 / clamp(0) squared), which made the backward pass NaN although the
+    forward value was masked out. The denominator is at least alpha^4 >= ALPHA_MIN^4, so the
+    gradient is finite everywhere, and exactly 0 where omega = 0.
     """
     omega_h = omega / (4.0 * d.o_dot_h.clamp_min(1e-6))
-    ratio = (d.alpha * d.alpha + d.sin2_h) / (window * window * omega_h).clamp_min(1e-30)
-    return 1.0 / (1.0 + ratio * ratio)
+    s = window * window * omega_h
+    l2 = d.alpha * d.alpha + d.sin2_h
+    s2 = s * s
+    return s2 / (s2 + l2 * l2)
 
 
 class _Frame:
@@ -275,6 +284,11 @@ def _lobe_rule(fr: _Frame, alpha: Tensor, lcd: LcdGeometry, integrand: Integrand
 
 
 def chunk_size(settings: QuadratureSettings, cells: int) -> int:
-    """Pixels per chunk so that pixels x light points stays below ``settings.max_elements``."""
+    """Pixels per chunk so that pixels x light points stays below ``settings.max_elements``.
+    Raises MitsvbrdfError when a single pixel's points exceed it (the memory bound cannot hold)."""
     pts = cells * settings.cell_order ** 2 + settings.lobe_grid ** 2
+    if pts > settings.max_elements:
+        raise MitsvbrdfError(f"the reference quadrature needs {pts} points per texel ({cells} cells x cell_order "
+                             f"{settings.cell_order}^2 + lobe_grid {settings.lobe_grid}^2), more than max_elements = "
+                             f"{settings.max_elements}: lower cell_order or lobe_grid")
     return max(1, settings.max_elements // pts)

@@ -23,6 +23,7 @@ from __future__ import annotations
 
 import dataclasses
 import difflib
+import math
 import tomllib
 import typing
 from dataclasses import dataclass, field
@@ -185,19 +186,42 @@ def load_config(path: str | Path | None = None, overrides: list[str] | None = No
 
 
 def _check_values(cfg: Config) -> None:
+    for key, value in _leaves(config_table(cfg)):  # TOML has inf and nan literals
+        if isinstance(value, float) and not math.isfinite(value):
+            raise ConfigError(f"{key}: must be a finite number, got {value}")
     checks = [(cfg.data.source in ("procedural", "strips", "folders"), "data.source", "procedural, strips or folders"),
               (cfg.render.method in ("mitsuba", "ltc", "reference"), "render.method", "mitsuba, ltc or reference"),
               (cfg.render.ltc_mode in ("exact", "prefiltered"), "render.ltc_mode", "exact or prefiltered"),
               (cfg.train.device in ("auto", "cpu", "cuda"), "train.device", "auto, cpu or cuda"),
               (cfg.train.steps >= 1, "train.steps", ">= 1"), (cfg.train.batch >= 1, "train.batch", ">= 1"),
               (cfg.train.checkpoint_every >= 1, "train.checkpoint_every", ">= 1"),
-              (cfg.train.log_every >= 1, "train.log_every", ">= 1"), (cfg.data.size % 8 == 0, "data.size", "a multiple of 8"),
+              (cfg.train.log_every >= 1, "train.log_every", ">= 1"),
+              (cfg.data.size >= 8 and cfg.data.size % 8 == 0, "data.size", "a positive multiple of 8"),
+              (cfg.data.length >= 1, "data.length", ">= 1"),
+              (cfg.train.lr_min >= 0, "train.lr_min", ">= 0"), (cfg.train.weight_decay >= 0, "train.weight_decay", ">= 0"),
+              (cfg.train.grad_clip >= 0, "train.grad_clip", ">= 0 (0: no clipping)"),
+              (cfg.render.noise.shot >= 0, "render.noise.shot", ">= 0"),
+              (cfg.render.noise.read >= 0, "render.noise.read", ">= 0"),
+              (cfg.render.noise.bits >= 0, "render.noise.bits", ">= 0"),
+              (cfg.render.noise.white > 0, "render.noise.white", "> 0"),
               (cfg.render.spp >= 1, "render.spp", ">= 1"), (cfg.train.lr > 0, "train.lr", "> 0")]
     for ok, key, want in checks:
         if not ok:
             raise ConfigError(f"{key}: must be {want}")
     if cfg.data.source != "procedural" and not cfg.data.root:
         raise ConfigError(f"data.root: needed for data.source = {cfg.data.source!r}")
+
+
+def _leaves(t: Any, prefix: str = ""):
+    """(dotted key, value) of every non-table value, list items included."""
+    if isinstance(t, dict):
+        for k, v in t.items():
+            yield from _leaves(v, f"{prefix}{k}.")
+    elif isinstance(t, list):
+        for i, v in enumerate(t):
+            yield from _leaves(v, f"{prefix[:-1]}[{i}].")
+    else:
+        yield prefix[:-1], t
 
 
 def _deepcopy(t: Any) -> Any:

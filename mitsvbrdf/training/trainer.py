@@ -39,6 +39,64 @@ class TrainingError(MitsvbrdfError):
     """A run that cannot start or continue (missing checkpoint, incompatible files)."""
 
 
+class TrainingInterrupted(RuntimeError):
+    """SIGINT or SIGTERM stopped the run at a step boundary, after its checkpoint was written.
+
+    ``signal`` is the signal's number (the CLI exits with 128 + it), ``step`` the step reached."""
+
+    def __init__(self, signum: int, step: int, checkpoint: Path):
+        self.signal, self.step, self.checkpoint = signum, step, checkpoint
+        super().__init__(f"stopped at step {step} by {signal.Signals(signum).name}; checkpoint in {checkpoint} "
+                         "(continue with --resume)")
+
+
+#: Files a run writes into its folder (besides config.json); ``--overwrite`` removes them first.
+RUN_FILES = ("checkpoint.pt", "networks.pt", "metrics.csv", "loss.png")
+
+#: Config keys that may differ when a run is resumed: where the run lives and how it is watched,
+#: and train.steps, which may grow (not below the checkpoint's step). Anything else changes what
+#: the earlier steps computed, so --resume refuses it.
+RESUMABLE_CHANGES = ("out", "train.steps", "train.checkpoint_every", "train.log_every", "train.device")
+
+
+def _flatten(table: dict, prefix: str = "") -> dict:
+    out = {}
+    for k, v in table.items():
+        key = f"{prefix}{k}"
+        if isinstance(v, dict):
+            out.update(_flatten(v, key + "."))
+        else:
+            out[key] = v
+    return out
+
+
+def config_changes(old: dict, new: dict) -> list[str]:
+    """Keys (dotted) whose values differ between two config tables, outside RESUMABLE_CHANGES."""
+    a, b = _flatten(old), _flatten(new)
+    return sorted(k for k in set(a) | set(b)
+                  if k not in RESUMABLE_CHANGES and a.get(k, "<absent>") != b.get(k, "<absent>"))
+
+
+def _plain(value, where: str = "checkpoint") -> None:
+    """Raise TypeError unless ``value`` is made of tensors, numbers, strings, None and containers of
+    them: what ``torch.load(..., weights_only=True)`` reads back without running code."""
+    if isinstance(value, dict):
+        for k, v in value.items():
+            if not isinstance(k, (str, int)):
+                raise TypeError(f"{where}: key {k!r} is a {type(k).__name__}")
+            _plain(v, f"{where}.{k}")
+    elif isinstance(value, (list, tuple)):
+        for i, v in enumerate(value):
+            _plain(v, f"{where}[{i}]")
+    elif not (value is None or isinstance(value, (torch.Tensor, bool, int, float, str))):
+        raise TypeError(f"{where} is a {type(value).__name__}, not a tensor, number or string")
+
+
+def _first_line(e: BaseException) -> str:
+    text = str(e).strip()
+    return text.splitlines()[0] if text else type(e).__name__
+
+
 def _device(name: str) -> torch.device:
     if name == "auto":
         return torch.device("cuda" if torch.cuda.is_available() else "cpu")
@@ -66,7 +124,8 @@ def step_seed(seed: int, step: int, rank: int) -> int:
 class Trainer:
     """Runs one configured stage. ``rank``/``world`` come from torchrun's environment."""
 
-    def __init__(self, cfg: Config, *, resume: bool = False, progress: bool = True, stop_after: int | None = None):
+    def __init__(self, cfg: Config, *, resume: bool = False, progress: bool = True, stop_after: int | None = None,
+                 overwrite: bool = False):
         self.cfg = cfg
         self.world = int(os.environ.get("WORLD_SIZE", "1"))
         self.rank = int(os.environ.get("RANK", "0"))
@@ -78,6 +137,12 @@ class Trainer:
         if self.device.type == "cuda" and self.world > 1:
             self.device = torch.device("cuda", int(os.environ.get("LOCAL_RANK", "0")))
         self.out = Path(cfg.out)
+        if resume and overwrite:
+            raise TrainingError("--resume continues the run in the folder and --overwrite starts it again: choose one")
+        existing = [f for f in RUN_FILES[:2] if (self.out / f).exists()]
+        if existing and not resume and not overwrite:
+            raise TrainingError(f"{self.out} already holds a run ({', '.join(existing)}): pass --resume to "
+                                "continue it, --overwrite to start it again, or choose another out")
         self.progress = progress and self.rank == 0
         self.stop_after = stop_after  # tests: stop as if killed after this many steps
         torch.manual_seed(cfg.seed)
@@ -104,11 +169,15 @@ class Trainer:
         self.step = 0
         self.history: list[dict] = []
         self._stop = False
+        self._signal: int | None = None
         if resume:
             self._load_checkpoint()
         if self.rank == 0:
             import json
 
+            if overwrite:
+                for f in RUN_FILES:
+                    (self.out / f).unlink(missing_ok=True)
             self.out.mkdir(parents=True, exist_ok=True)
             (self.out / "config.json").write_text(json.dumps(config_table(cfg), indent=1, default=str))
 
@@ -125,16 +194,47 @@ class Trainer:
         self.stage.load_pretrained(read_network_file(path, "networks"))
 
     def _load_checkpoint(self) -> None:
-        if not self.checkpoint_path.exists():
-            raise TrainingError(f"--resume: no checkpoint at {self.checkpoint_path}")
-        ck = torch.load(self.checkpoint_path, map_location=self.device, weights_only=False)
-        if ck["config"]["stage"] != self.cfg.stage:
-            raise TrainingError(f"--resume: {self.checkpoint_path} is a {ck['config']['stage']!r} run, "
+        path = self.checkpoint_path
+        if not path.exists():
+            raise TrainingError(f"--resume: no checkpoint at {path}")
+        try:
+            # weights_only: a checkpoint is data (tensors, numbers, strings); one from elsewhere
+            # cannot run code when it is read.
+            ck = torch.load(path, map_location=self.device, weights_only=True)
+        except Exception as e:  # truncated, corrupt, or pickled objects that are not plain data
+            raise TrainingError(f"--resume: {path} cannot be read as a checkpoint ({_first_line(e)}); "
+                                "restore it, or start again with --overwrite") from None
+        needed = ("stage", "optimizer", "scheduler", "rng", "step", "history", "config")
+        if not isinstance(ck, dict) or any(k not in ck for k in needed) or not isinstance(ck["config"], dict):
+            raise TrainingError(f"--resume: {path} is not a training checkpoint of this version")
+        if ck["config"].get("stage") != self.cfg.stage:
+            raise TrainingError(f"--resume: {path} is a {ck['config'].get('stage')!r} run, "
                                 f"the config trains {self.cfg.stage!r}")
-        self.stage.load_state_dict(ck["stage"])
-        self.opt.load_state_dict(ck["optimizer"])
-        self.sched.load_state_dict(ck["scheduler"])
-        torch.set_rng_state(ck["rng"])
+        new = config_table(self.cfg)
+        changed = config_changes(ck["config"], new)
+        if changed:
+            old, now = _flatten(ck["config"]), _flatten(new)
+            shown = "; ".join(f"{k} = {old.get(k, '<absent>')!r} then, {now.get(k, '<absent>')!r} now"
+                              for k in changed[:4])
+            more = f" and {len(changed) - 4} more" if len(changed) > 4 else ""
+            raise TrainingError(f"--resume: the settings differ from the checkpoint's: {shown}{more} (only "
+                                f"{', '.join(RESUMABLE_CHANGES)} may change; start a new run for the rest)")
+        if self.cfg.train.steps < ck["step"]:
+            raise TrainingError(f"--resume: train.steps = {self.cfg.train.steps} but {path} is at step {ck['step']}")
+        try:
+            self.stage.load_state_dict(ck["stage"])
+            self.opt.load_state_dict(ck["optimizer"])
+            self.sched.load_state_dict(ck["scheduler"])
+        except (RuntimeError, ValueError, KeyError) as e:
+            # load_state_dict lists every mismatching tensor on its own line: name the first
+            lines = [ln.strip() for ln in str(e).splitlines() if ln.strip()]
+            detail = lines[1] if len(lines) > 1 else _first_line(e)
+            more = f" and {len(lines) - 2} more" if len(lines) > 2 else ""
+            raise TrainingError(f"--resume: {path} does not fit these networks ({detail}{more})") from None
+        # More steps than the checkpoint's run planned: the cosine schedule continues from the
+        # current rate and ends at lr_min on the new last step.
+        self.sched.T_max = self.cfg.train.steps
+        torch.set_rng_state(ck["rng"].cpu())
         self.step = ck["step"]
         self.history = ck["history"]
 
@@ -145,6 +245,7 @@ class Trainer:
         ck = {"stage": self.stage.state_dict(), "optimizer": self.opt.state_dict(),
               "scheduler": self.sched.state_dict(), "rng": torch.get_rng_state(), "step": self.step,
               "history": self.history, "config": config_table(self.cfg)}
+        _plain(ck)  # what _load_checkpoint reads with weights_only=True
         tmp = self.checkpoint_path.with_suffix(".tmp")
         torch.save(ck, tmp)
         os.replace(tmp, self.checkpoint_path)
@@ -199,7 +300,9 @@ class Trainer:
         return collate_svbrdf(items).to(self.device)
 
     def _handle(self, signum, frame) -> None:
-        self._stop = True
+        if self._stop:  # a second signal: stop now, without the checkpoint of the step in flight
+            raise KeyboardInterrupt
+        self._stop, self._signal = True, signum
 
     def run(self) -> dict:
         """Train to ``train.steps``; returns the last logged losses."""
@@ -236,9 +339,8 @@ class Trainer:
                     self.save_checkpoint()
                 if self._stop or (self.stop_after is not None and self.step >= self.stop_after):
                     self.save_checkpoint()
-                    if self.rank == 0 and self._stop:
-                        print(f"\nstopped at step {self.step}; checkpoint in {self.checkpoint_path} "
-                              f"(continue with --resume)")
+                    if self._stop:
+                        raise TrainingInterrupted(self._signal, self.step, self.checkpoint_path)
                     return last
             self.save_checkpoint()
             self.export()
@@ -249,9 +351,10 @@ class Trainer:
                 signal.signal(s, h)
 
 
-def train(cfg: Config, *, resume: bool = False, progress: bool = True) -> dict:
-    """Run a configured stage to the end (or until a signal); returns the last logged losses."""
-    trainer = Trainer(cfg, resume=resume, progress=progress)
+def train(cfg: Config, *, resume: bool = False, progress: bool = True, overwrite: bool = False) -> dict:
+    """Run a configured stage to the end; returns the last logged losses. Raises
+    :class:`TrainingInterrupted` after checkpointing when SIGINT or SIGTERM stops it."""
+    trainer = Trainer(cfg, resume=resume, progress=progress, overwrite=overwrite)
     try:
         return trainer.run()
     finally:
@@ -259,4 +362,4 @@ def train(cfg: Config, *, resume: bool = False, progress: bool = True) -> dict:
             dist.destroy_process_group()
 
 
-__all__ = ["Trainer", "train", "TrainingError", "step_seed"]
+__all__ = ["Trainer", "train", "TrainingError", "TrainingInterrupted", "step_seed", "RESUMABLE_CHANGES", "RUN_FILES"]

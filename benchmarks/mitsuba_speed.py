@@ -3,17 +3,19 @@
     .venv/bin/python benchmarks/mitsuba_speed.py             # CPU (llvm); CUDA too when available
     .venv/bin/python benchmarks/mitsuba_speed.py --quick     # 64 px smoke run
 
-For B in {1, 8} materials x P = 5 MonoGrad patterns at 256 x 256 and spp in {1, 4, 16, 64}: the
-median wall time of a forward render and of forward + backward (gradients w.r.t. patterns and all
-maps), after one warm-up call that compiles the kernels. The error column is the relative RMSE of
-the B = 1 render against the reference renderer (material 0, default quadrature). Writes
-docs/benchmarks/mitsuba_speed_<device>.md and .csv.
+For each estimator of the ``importance`` integrator (``--estimators``, see benchmarks/estimators.py),
+B in {1, 8} materials x P = 5 MonoGrad patterns at 256 x 256 and spp in {1, 4, 16, 64}: the wall
+time of a forward render and of forward + backward (gradients w.r.t. patterns and all maps), the
+fastest of ``--repeats`` after one warm-up call that compiles the kernels (other work on a shared
+machine only adds time). The error column is the relative RMSE of the B = 1 render against the
+reference renderer (material 0, default quadrature). Writes docs/benchmarks/mitsuba_speed_<device>.md
+and .csv.
 """
 
 from __future__ import annotations
 
 import argparse
-import statistics
+import tempfile
 import time
 from pathlib import Path
 
@@ -21,6 +23,7 @@ import torch
 
 import mitsvbrdf as ms
 from mitsvbrdf.patterns import monograd
+from estimators import DEFAULT, estimator_rigs
 from report import write_report
 
 ROOT = Path(__file__).resolve().parent.parent
@@ -48,7 +51,7 @@ def timed(fn, repeats: int) -> float:
         if torch.cuda.is_available():
             torch.cuda.synchronize()
         out.append(time.perf_counter() - t0)
-    return statistics.median(out)
+    return min(out)
 
 
 def main() -> None:
@@ -57,6 +60,7 @@ def main() -> None:
     ap.add_argument("--spp", type=int, nargs="+", default=[1, 4, 16, 64])
     ap.add_argument("--batches", type=int, nargs="+", default=[1, 8])
     ap.add_argument("--repeats", type=int, default=3)
+    ap.add_argument("--estimators", default=f"plain,stratified,{DEFAULT}", help="comma-separated names")
     ap.add_argument("--device", default="cuda" if torch.cuda.is_available() else "cpu")
     ap.add_argument("--no-reference", action="store_true", help="skip the error column")
     ap.add_argument("--quick", action="store_true")
@@ -65,14 +69,15 @@ def main() -> None:
     if args.quick:
         args.size, args.spp, args.batches, args.repeats = 64, [1, 16], [1], 1
     device = torch.device(args.device)
-    rig = ms.Rig.from_scene()
+    rigs = estimator_rigs(Path(tempfile.mkdtemp(prefix="mitsuba_speed-")), args.estimators.split(","))
+    rig = rigs[next(iter(rigs))]
     pats = monograd().to(device)
     ref = None
     if not args.no_reference:
         with torch.no_grad():
             ref = ms.render(materials(1, args.size, "cpu"), monograd(), rig).to(device)
     rows = []
-    for b in args.batches:
+    for (est, rig), b in ((e, b) for e in rigs.items() for b in args.batches):
         m = materials(b, args.size, device)
         for spp in args.spp:
             with torch.no_grad():
@@ -90,15 +95,15 @@ def main() -> None:
 
             fwd_bwd()
             both = timed(fwd_bwd, args.repeats)
-            rows.append({"device": device.type, "B": b, "P": 5, "size": args.size, "spp": spp,
+            rows.append({"device": device.type, "estimator": est, "B": b, "P": 5, "size": args.size, "spp": spp,
                          "forward_ms": round(fwd * 1e3, 1), "forward_backward_ms": round(both * 1e3, 1),
                          "rel_rmse_vs_reference": None if err is None else round(err, 4)})
             print(rows[-1], flush=True)
     name = torch.cuda.get_device_name(0) if device.type == "cuda" else f"CPU, {torch.get_num_threads()} threads"
     lines = [f"Mitsuba renderer (`method=\"mitsuba\"`) on {name}, {args.size}x{args.size}, P = 5 patterns.", "",
-             "| B | spp | forward (ms) | forward+backward (ms) | rel. RMSE vs reference (B=1) |",
-             "|---:|---:|---:|---:|---:|"]
-    lines += [f"| {r['B']} | {r['spp']} | {r['forward_ms']} | {r['forward_backward_ms']} | "
+             "| estimator | B | spp | forward (ms) | forward+backward (ms) | rel. RMSE vs reference (B=1) |",
+             "|---|---:|---:|---:|---:|---:|"]
+    lines += [f"| {r['estimator']} | {r['B']} | {r['spp']} | {r['forward_ms']} | {r['forward_backward_ms']} | "
               f"{'' if r['rel_rmse_vs_reference'] is None else r['rel_rmse_vs_reference']} |" for r in rows]
     text = "\n".join(lines) + "\n"
     print(text)

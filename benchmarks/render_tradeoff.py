@@ -38,21 +38,11 @@ import torch
 import mitsvbrdf as ms
 from mitsvbrdf.cli import _resize_svbrdf
 from mitsvbrdf.patterns import colorgrad, monograd, random, step_edges
+from estimators import DEFAULT, ESTIMATORS, estimator_rigs
 from report import write_report
-
-from mitsvbrdf.capture.scene_file import write_integrator_options
 
 ROOT = Path(__file__).resolve().parent.parent
 SPPS = (1, 4, 16, 64, 256)
-DEFAULT = "ltc-cv"
-#: name -> integrator options (empty: the scene file's defaults)
-ESTIMATORS = {"plain": {"sampler": "independent", "control_variate": "none"},
-              "stratified": {"sampler": "stratified", "control_variate": "none"},
-              "diffuse-cv": {"control_variate": "diffuse"},
-              DEFAULT: {},
-              "ltc-cv-4-blocks": {"cv_blocks": 4},
-              "ltc-cv-16-blocks": {"cv_blocks": 16},
-              "ltc-cv-pattern-light": {"light_sampling": "patterns"}}
 
 
 def material(size: int, roughness: float, tilt_deg: float | None = None) -> ms.SVBRDF:
@@ -93,13 +83,6 @@ def uniform_lcd_bias(rig: ms.Rig, size: int = 8) -> list[dict]:
             row[f"ref_mean r={r}"] = float(f"{ref.mean().item():.3g}")
         rows.append(row)
     return rows
-
-
-def estimator_rigs(work: Path) -> dict[str, ms.Rig]:
-    """A rig per estimator: the default scene with that estimator's integrator options."""
-    scene = ROOT / "scenes" / "lcd_rig.xml"
-    return {name: ms.Rig.from_scene(write_integrator_options(scene, work / f"{name}.xml", **opts))
-            for name, opts in ESTIMATORS.items()}
 
 
 def methods(rigs: dict[str, ms.Rig], spps=SPPS):

@@ -308,3 +308,11 @@ def test_blocks_that_do_not_tile_the_lcd_are_a_clear_error(tmp_path):
     path = scene_with(tmp_path / "blocks.xml", {"cv_blocks": 5})
     with pytest.raises(ValueError, match="cv_blocks = 5"):
         ms.render(flat_material(4), pt.uniform(), ms.Rig.from_scene(path), method="mitsuba", spp=1)
+
+
+def test_a_render_after_another_variant_was_set_runs_in_the_scenes_variant(rig):
+    import mitsuba as mi
+    m, p = flat_material(4), pt.monograd()[:2]
+    first = ms.render(m, p, rig, method="mitsuba", spp=4, seed=1)
+    mi.set_variant("scalar_rgb")  # as code that builds Mitsuba objects for other purposes may do
+    torch.testing.assert_close(ms.render(m, p, rig, method="mitsuba", spp=4, seed=1), first)

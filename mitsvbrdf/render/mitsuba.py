@@ -35,11 +35,13 @@ def _variant_for(device: torch.device) -> str:
 
 def load_scene(source: str, variant: str):
     """The loaded Mitsuba scene, its parameters and integrator for a scene file (cached)."""
+    import mitsvbrdf_plugins
+
+    # Every call: ``mi``'s types follow the current variant, which other code may have switched
+    # (e.g. to scalar_rgb) since the scene was loaded; the plugins must run in the scene's.
+    mi = mitsvbrdf_plugins.register(variant)
     key = (source, variant)
     if key not in _SCENES:
-        import mitsvbrdf_plugins
-
-        mi = mitsvbrdf_plugins.register(variant)
         try:
             scene = mi.load_file(source)
         except RuntimeError as e:

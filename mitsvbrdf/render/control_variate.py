@@ -140,12 +140,14 @@ def control_variate(svbrdf, patterns: Tensor, rig: Rig, *, mode: str = "ltc", bl
     corners = rig.lcd_corners.to(dev, dt)
     cos_v = (n * wo).sum(-1)  # (B, N)
     ok = (cos_v > 0) & (wo[:, 2] > 0)
-    above = (torch.einsum("bnk,cnk->bnc", n, (corners[:, None] - x[None])) > 0).all(-1)
+    # (Broadcast products below, not einsum: einsum lowers these to bmm over 10^4 tiny matrices.)
+    above = ((n[:, None] * (corners[:, None] - x[None])[None]).sum(-1) > 0).all(1)
     kdd = torch.where((ok & above)[..., None], kd * (1 - ks), torch.zeros_like(kd))  # (B, N, 3)
 
     phi = _block_form_factors(rig, H, W, blocks).to(dev, dt)  # (N, K^2, 3)
-    ff = torch.einsum("bnk,nck->bnc", n, phi)  # (B, N, K^2)
-    known = kdd[:, None] * torch.einsum("bnc,bpjc->bpnj", ff, lbar)  # (B, P, N, 3)
+    ff = (n[:, :, None] * phi[None]).sum(-1)  # (B, N, K^2)
+    known = torch.bmm(ff, lbar.reshape(B, P * 3, -1).transpose(1, 2)).reshape(B, -1, P, 3)
+    known = kdd[:, None] * known.permute(0, 2, 1, 3)  # (B, P, N, 3)
 
     m_entries = torch.zeros(B, H * W, 4, dtype=dt, device=dev)
     spec = torch.zeros(B, H * W, P, 3, dtype=dt, device=dev)
@@ -157,12 +159,13 @@ def control_variate(svbrdf, patterns: Tensor, rig: Rig, *, mode: str = "ltc", bl
         a, bb, c, d = m_inv[:, 0, 0], m_inv[:, 0, 2], m_inv[:, 1, 1], m_inv[:, 2, 0]
         m_entries = torch.stack([a, bb, c, d], -1).reshape(B, N, 4)
         rel = (corners[:, None] - x[None]).repeat(1, B, 1)  # (4, B N, 3)
-        local = torch.einsum("nak,vnk->nva", frame, rel)
-        e = clipped_polygon_vector_form_factor(torch.einsum("nab,nvb->nva", m_inv, local))[:, 2].abs()
+        local = (frame[:, None] * rel.transpose(0, 1)[:, :, None]).sum(-1)  # (B N, 4, 3) in the view frame
+        warped = (m_inv[:, None] * local[:, :, None]).sum(-1)
+        e = clipped_polygon_vector_form_factor(warped)[:, 2].abs()
         # The lobe's peak direction M z: for M^-1 = [[a, 0, b], [0, c, 0], [d, 0, 1]], along (-b, 0, a)/(a - b d).
         peak = torch.nn.functional.normalize(torch.stack([-bb, torch.zeros_like(a), a], -1)
                                              * torch.sign(a - bb * d)[:, None], dim=-1)
-        block, decay = _peak_block(rig, x.repeat(B, 1), torch.einsum("nak,na->nk", frame, peak), blocks)
+        block, decay = _peak_block(rig, x.repeat(B, 1), (frame * peak[..., None]).sum(1), blocks)
         use = ok.reshape(-1) & (r.reshape(-1) >= ltc_min_roughness)
         ksf = ks.reshape(-1, 3)
         s = torch.where(use[:, None], ksf * (a_one - a_s)[:, None] + a_s[:, None], torch.zeros_like(ksf))

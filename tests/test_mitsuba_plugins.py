@@ -66,7 +66,11 @@ def test_bsdf_eval_matches_the_torch_brdf(mi):
         nn = torch.tensor(normal, dtype=torch.float32)
         want = ms.brdf(nn / nn.norm(), torch.tensor(wo, dtype=torch.float32), torch.tensor(wi, dtype=torch.float32),
                        torch.tensor(kd), torch.tensor(ks), torch.tensor([r]), cosine=True).numpy()
-        np.testing.assert_allclose(got, want, rtol=1e-5, atol=1e-5 * max(1.0, np.abs(want).max()))
+        # Near the peak of a lobe of width alpha, a half vector rounded to float32 (eps per
+        # component) moves D by ~eps / alpha relative: the two implementations round differently.
+        alpha = max(r * r, 1e-4)
+        rtol = 1e-5 + 4 * np.finfo(np.float32).eps / alpha
+        np.testing.assert_allclose(got, want, rtol=rtol, atol=1e-5 * max(1.0, np.abs(want).max()))
 
 
 # Mitsuba's chi-square grid must resolve the lobe: 301 x 150 cells for alpha = 0.0025 (r = 0.05).

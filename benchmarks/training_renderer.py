@@ -7,25 +7,29 @@ scored on the same held-out materials rendered by the reference renderer.
 
 Every run is ``train/fixed-monograd-small.toml`` (the MonoGrad baseline: G_sc with fixed
 patterns) at ``--size`` px, width ``--width``, ``--steps`` steps, batch 4, seed 4 (same data
-stream, same initialisation); only the renderer of the training captures differs:
+stream, same initialisation; see ``--seeds``); only the renderer of the training captures differs:
 
 * ``mitsuba-plain``: the ``importance`` integrator as it was (independent samples, no control
   variate), 4 spp;
 * ``mitsuba-cv``: the default integrator (stratified samples, diffuse + LTC control variate), 4 spp;
 * ``ltc-prefiltered``: the paper's training renderer (noise-free, biased);
 * ``reference``: the deterministic quadrature (clean and unbiased; the slowest), unless
-  ``--skip-reference``.
+  ``--skip-reference`` (then only its cost per step is probed).
+
+With ``--seeds``, every run is trained once per seed (initialisation and data stream change
+together) and the table gives means over seeds and materials plus paired differences against the
+default integrator with their standard errors, so that run-to-run noise can be told from an effect.
 
 Each run is scored on ``--eval-n`` held-out procedural materials (seeds >= 1_000_000, never seen
 in training) whose MonoGrad captures come from the reference renderer: map RMSE on encoded maps
 per map and average, as ``mitsvbrdf evaluate`` reports it. The table also gives each run's seconds
-per training step (measured in the run, on this machine).
+per training step, measured for every run the same way (two short probe runs of 2 and 6 steps; the
+difference of their wall times over the 4 extra steps).
 """
 
 from __future__ import annotations
 
 import argparse
-import csv
 import os
 import subprocess
 import sys
@@ -54,7 +58,7 @@ def train(name: str, out: Path, args) -> float:
     """Train run ``name`` into ``out`` (resuming an interrupted run); returns its wall seconds."""
     overrides, options = RUNS[name]
     sets = [f"out=\"{out}\"", f"data.size={args.size}", f"model.svbrdf_width={args.width}",
-            f"train.steps={args.steps}", "train.batch=4", "seed=4",
+            f"train.steps={args.steps}", "train.batch=4", f"seed={getattr(args, 'seed', 4)}",
             f"train.checkpoint_every={min(100, args.steps)}", f"train.log_every={min(10, args.steps)}", *overrides]
     if options is not None:
         scene = write_integrator_options(ROOT / "scenes" / "lcd_rig.xml", out.parent / f"{name}.xml", **options)
@@ -70,16 +74,25 @@ def train(name: str, out: Path, args) -> float:
     return time.perf_counter() - t0
 
 
-def seconds_per_step(out: Path) -> float:
-    """Median seconds per step over the run's logged intervals (metrics.csv)."""
-    rows = list(csv.DictReader((out / "metrics.csv").open()))
-    per = sorted(1.0 / float(r["it_per_s"]) for r in rows if float(r.get("it_per_s") or 0) > 0)
-    return per[len(per) // 2] if per else float("nan")
+def probe_seconds_per_step(name: str, args) -> float:
+    """Seconds per step of run ``name`` without training it: two short runs (2 and 6 steps) in a
+    scratch folder, the difference of their wall times over the 4 extra steps (start-up cancels)."""
+    import shutil
+    from argparse import Namespace
+
+    times = []
+    for steps in (2, 2, 6):  # the first run compiles what the others then find cached
+        out = args.work / f"{name}-probe-{steps}"
+        shutil.rmtree(out, ignore_errors=True)
+        times.append(train(name, out, Namespace(**{**vars(args), "steps": steps})))
+        shutil.rmtree(out, ignore_errors=True)
+    return (times[2] - times[1]) / 4
 
 
-def score(networks: Path, materials, rig) -> dict[str, float]:
-    """Map RMSE (encoded maps) per map and average over ``materials``: each captured under the
-    run's patterns by the reference renderer (clean and unbiased), reconstructed by its G_sc."""
+def score(networks: Path, materials, rig) -> dict[str, list[float]]:
+    """Map RMSE (encoded maps) per map and their average, per material of ``materials``: each
+    captured under the run's patterns by the reference renderer (clean and unbiased), reconstructed
+    by its G_sc. {"rmse_normal": [...], ..., "rmse_average": [...]}."""
     from mitsvbrdf.metrics import map_rmse
     from mitsvbrdf.nets import network_from_record
     from mitsvbrdf.nets.io import read_network_file
@@ -90,15 +103,12 @@ def score(networks: Path, materials, rig) -> dict[str, float]:
     recs = read_network_file(networks, "baseline networks")
     net = network_from_record(recs["svbrdf"], "svbrdf").eval()
     pats = network_from_record(recs["patterns"], "patterns")().detach()
-    sums = dict.fromkeys(MAPS, 0.0)
+    out: dict[str, list[float]] = {f"rmse_{k}": [] for k in (*MAPS, "average")}
     with torch.no_grad():
         for gt in materials:
             pred = maps_to_svbrdf(reconstruct_maps(net, render(gt, pats, rig, method="reference"), pats, rig))
             for k, v in map_rmse(pred, gt).items():
-                if k in sums:
-                    sums[k] += float(v[0])
-    out = {f"rmse_{k}": v / len(materials) for k, v in sums.items()}
-    out["rmse_average"] = sum(out.values()) / len(MAPS)
+                out[f"rmse_{k}"].append(float(v[0]))
     return out
 
 
@@ -109,7 +119,9 @@ def main() -> None:
     ap.add_argument("--width", type=int, default=16)
     ap.add_argument("--eval-n", type=int, default=16)
     ap.add_argument("--runs", default=",".join(RUNS), help="comma-separated subset of " + ", ".join(RUNS))
+    ap.add_argument("--seeds", default="4", help="comma-separated training seeds (4: the config's)")
     ap.add_argument("--skip-reference", action="store_true")
+    ap.add_argument("--no-probe", action="store_true", help="leave out the seconds-per-step probes")
     ap.add_argument("--eval-only", action="store_true")
     ap.add_argument("--quick", action="store_true", help="3 steps at 16 px, 2 materials; nothing written")
     ap.add_argument("--work", type=Path, default=ROOT / "runs" / "training_renderer")
@@ -119,16 +131,29 @@ def main() -> None:
     unknown = [n for n in names if n not in RUNS]
     if unknown:
         ap.error(f"unknown runs {unknown}; available: {', '.join(RUNS)}")
+    untrained = []
     if args.skip_reference:
+        untrained = [n for n in names if n == "reference"]
         names = [n for n in names if n != "reference"]
     if args.quick:
         args.steps, args.size, args.width, args.eval_n = 3, 16, 4, 2
         args.work = args.work.parent / (args.work.name + "-quick")
-    for name in names:
-        out = args.work / name
-        if args.eval_only or (out / "networks.pt").exists():
-            continue
-        train(name, out, args)
+    seeds = [int(x) for x in args.seeds.split(",")]
+
+    def folder(name: str, seed: int) -> Path:
+        return args.work / (name if seed == 4 else f"{name}-seed{seed}")
+
+    for seed in seeds:
+        for name in names:
+            out = folder(name, seed)
+            if args.eval_only or (out / "networks.pt").exists():
+                continue
+            args.seed = seed
+            train(name, out, args)
+    args.seed = seeds[0]
+    # Every run's cost per step, measured the same way in one window after training (the runs
+    # themselves may have shared the machine with other work).
+    probed = {} if args.quick or args.no_probe else {n: probe_seconds_per_step(n, args) for n in names + untrained}
 
     import mitsvbrdf as ms
     from mitsvbrdf.data.procedural import generate
@@ -137,25 +162,51 @@ def main() -> None:
     rig = ms.Rig.from_scene()
     held_out = generate(args.eval_n, size=args.size, seed=TEST_SEED_BASE)
     materials = [held_out[i] for i in range(args.eval_n)]
-    rows = []
+    keys = ["rmse_average"] + ["rmse_" + m for m in MAPS]
+    scores: dict[str, dict[str, list[float]]] = {}  # run -> key -> values over (seed, material)
     for name in names:
-        out = args.work / name
-        if not (out / "networks.pt").exists():
-            print(f"{name}: no networks.pt in {out}, skipped", flush=True)
+        done = [folder(name, s) for s in seeds if (folder(name, s) / "networks.pt").exists()]
+        if len(done) < len(seeds):
+            print(f"{name}: {len(seeds) - len(done)} of its seeds have no networks.pt, skipped", flush=True)
             continue
-        row = {"run": name, "seconds_per_step": round(seconds_per_step(out), 3)}
-        row.update({k: round(v, 5) for k, v in score(out / "networks.pt", materials, rig).items()})
+        scores[name] = {k: [] for k in keys}
+        for out in done:
+            for k, v in score(out / "networks.pt", materials, rig).items():
+                scores[name][k] += v
+    rows = []
+    for name, sc in scores.items():
+        row = {"run": name, "seconds_per_step": round(probed[name], 3) if name in probed else ""}
+        row.update({k: round(sum(v) / len(v), 5) for k, v in sc.items()})
         rows.append(row)
         print(row, flush=True)
-    keys = ["rmse_average"] + ["rmse_" + m for m in MAPS]
-    lines = [f"G_sc (fixed MonoGrad, {args.size} px, width {args.width}, {args.steps} steps, batch 4, seed 4) "
-             f"trained on captures from each renderer; map RMSE (encoded maps) on {args.eval_n} held-out "
-             f"procedural materials whose captures come from the reference renderer "
+    lines = [f"G_sc (fixed MonoGrad, {args.size} px, width {args.width}, {args.steps} steps, batch 4, seeds "
+             f"{args.seeds}) trained on captures from each renderer; map RMSE (encoded maps) on {args.eval_n} held-out "
+             f"procedural materials whose captures come from the reference renderer, mean over seeds and materials "
              f"({torch.get_num_threads()} threads for the step times).", "",
              "| training renderer | s / step | " + " | ".join(k.replace("rmse_", "") for k in keys) + " |",
              "|---|---:|" + "---:|" * len(keys)]
     lines += [f"| {r['run']} | {r['seconds_per_step']} | " + " | ".join(f"{r[k]:.4f}" for k in keys) + " |"
               for r in rows]
+    for name in untrained:
+        sec = f"{probed[name]:.3f}" if name in probed else ""
+        lines.append(f"| {name} (not trained) | {sec} | " + " | ".join("-" for _ in keys) + " |")
+    for name in untrained:
+        if name in probed:
+            lines += ["", f"{name}: {args.steps} steps would take about {args.steps * probed[name] / 60:.0f} "
+                          f"minutes per seed on this machine; left out (--skip-reference)."]
+    if "mitsuba-cv" in scores and len(scores) > 1:
+        lines += ["", "Paired differences against mitsuba-cv (the default integrator), over the same seeds and "
+                      "materials: mean +- standard error; negative means lower error than mitsuba-cv.", "",
+                  "| run | " + " | ".join(k.replace("rmse_", "") for k in keys) + " |", "|---|" + "---:|" * len(keys)]
+        base = scores["mitsuba-cv"]
+        for name, sc in scores.items():
+            if name == "mitsuba-cv":
+                continue
+            cells = []
+            for k in keys:
+                d = torch.tensor(sc[k]) - torch.tensor(base[k])
+                cells.append(f"{d.mean():+.4f} +- {d.std(unbiased=True) / len(d) ** 0.5:.4f}")
+            lines.append(f"| {name} | " + " | ".join(cells) + " |")
     if rows:
         best = min(rows, key=lambda r: r["rmse_average"])
         lines += ["", f"Lowest average map RMSE: {best['run']} ({best['rmse_average']:.4f})."]

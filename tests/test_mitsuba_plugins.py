@@ -1,4 +1,6 @@
-"""The Mitsuba plugins (lcd emitter, svbrdf_ggx BSDF, importance integrator) and render(method="mitsuba").
+"""The Mitsuba plugins (lcd emitter, svbrdf_ggx BSDF, importance integrator) and render(method="mitsuba"):
+the BSDF, bad input, and the scene camera's path; the estimators are specified in
+tests/test_integrator_options.py.
 
 All on the CPU (llvm_ad_rgb) at 8-16 px; skipped when no libLLVM >= 16 is available.
 """
@@ -15,7 +17,7 @@ from mitsvbrdf import backend
 from mitsvbrdf import patterns as pt
 from mitsvbrdf.errors import PatternError, SceneError
 
-from conftest import flat_material, textured_material
+from conftest import flat_material
 
 pytestmark = pytest.mark.mitsuba
 if backend.find_libllvm() is None:  # pragma: no cover - depends on the machine
@@ -28,20 +30,6 @@ SCENE = Path(__file__).resolve().parents[1] / "scenes" / "lcd_rig.xml"
 def mi():
     import mitsvbrdf_plugins
     return mitsvbrdf_plugins.register("llvm_ad_rgb")
-
-
-def _rel_rmse(a, b):
-    return ((a - b).square().mean().sqrt() / b.square().mean().sqrt()).item()
-
-
-def _decay_rig(tmp_path):
-    text = SCENE.read_text().replace(
-        '<float name="intensity" value="1.0"/>',
-        '<float name="intensity" value="1.0"/><float name="decay_cos_power" value="2"/>'
-        '<vector name="decay_gradient" x="-0.6" y="0.2" z="0"/>')
-    path = tmp_path / "decay.xml"
-    path.write_text(text)
-    return ms.Rig.from_scene(path)
 
 
 # ---- the BSDF ---------------------------------------------------------------------------------
@@ -88,143 +76,9 @@ def test_bsdf_sampling_passes_the_chi_square_test(mi, roughness, theta_deg, res,
     assert chi2.run(), chi2.messages
 
 
-# ---- agreement with the reference renderer ---------------------------------------------------
-
-@pytest.mark.parametrize("roughness", [0.01, 0.1, 0.4, 1.0])
-def test_mitsuba_agrees_with_the_reference_on_flat_materials(rig, roughness):
-    m = flat_material(8, diffuse=0.5, specular=0.3, roughness=roughness)
-    p = pt.monograd()[:3]
-    a = ms.render(m, p, rig, method="mitsuba", spp=16384)
-    b = ms.render(m, p, rig)
-    assert _rel_rmse(a, b) < 0.01
-
-
-@pytest.mark.parametrize("roughness", [(0.05, 0.2), (0.3, 1.0)])
-def test_mitsuba_agrees_with_the_reference_with_normal_maps(rig, roughness):
-    m = textured_material(8, roughness=roughness)
-    p = pt.colorgrad()[1:3]
-    a = ms.render(m, p, rig, method="mitsuba", spp=16384)
-    assert _rel_rmse(a, ms.render(m, p, rig)) < 0.01
-
-
-def test_mitsuba_agrees_with_the_reference_with_emission_decay(rig, tmp_path):
-    r = _decay_rig(tmp_path)
-    m = textured_material(8, roughness=(0.2, 0.6))
-    p = pt.monograd()[1:3]
-    a = ms.render(m, p, r, method="mitsuba", spp=16384)
-    b = ms.render(m, p, r)
-    assert _rel_rmse(a, b) < 0.01
-    assert _rel_rmse(ms.render(m, p, rig), b) > 0.05  # the decay matters at this scale
-
-
-# ---- batching, determinism, compilation --------------------------------------------------------
-
-def test_all_patterns_in_one_pass_equal_separate_renders(rig):
-    m = textured_material(8)
-    p = pt.random(n=3, seed=2)
-    together = ms.render(m, p, rig, method="mitsuba", spp=16, seed=7)
-    for k in range(3):
-        alone = ms.render(m, p[k:k + 1], rig, method="mitsuba", spp=16, seed=7)
-        torch.testing.assert_close(together[:, k], alone[:, 0], rtol=1e-5, atol=1e-7)
-
-
-def test_batch_of_materials_with_their_own_patterns(rig):
-    m = ms.SVBRDF.cat([textured_material(8, seed=1), textured_material(8, seed=2)])
-    p = torch.stack([pt.random(n=2, seed=1), pt.random(n=2, seed=2)])
-    both = ms.render(m, p, rig, method="mitsuba", spp=8, seed=3)
-    one = ms.render(m[1], p[1], rig, method="mitsuba", spp=8, seed=4)  # material b uses seed + b
-    torch.testing.assert_close(both[1], one[0])
-
-
-def test_new_data_and_seed_reuse_the_compiled_kernels(rig):
-    import drjit as dr
-    m1, m2 = textured_material(8, seed=1), textured_material(8, seed=2)
-    ms.render(m1, pt.random(n=2, seed=1), rig, method="mitsuba", spp=4, seed=0)
-    dr.set_flag(dr.JitFlag.KernelHistory, True)
-    dr.kernel_history()  # clear
-    ms.render(m2, pt.random(n=2, seed=2), rig, method="mitsuba", spp=4, seed=5)
-    hist = [k for k in dr.kernel_history() if k.get("type") == dr.KernelType.JIT]
-    dr.set_flag(dr.JitFlag.KernelHistory, False)
-    assert hist and all(k["cache_hit"] for k in hist)
-
-
-# ---- gradients ---------------------------------------------------------------------------------
-
-def test_pattern_gradient_matches_finite_differences_and_the_reference(rig):
-    m = textured_material(8, roughness=(0.2, 0.5))
-    w = torch.rand(1, 1, 3, 8, 8, generator=torch.Generator().manual_seed(0))
-    p = pt.monograd()[1:2].clone()
-    cell = (0, 1, 12, 12)
-
-    def loss(q, method, **kw):
-        return (ms.render(m, q, rig, method=method, **kw) * w).sum()
-
-    grads = []
-    for seed in range(4):
-        q = p.clone().requires_grad_(True)
-        (g,) = torch.autograd.grad(loss(q, "mitsuba", spp=8192, seed=seed), q)
-        grads.append(g[cell].item())
-    e = torch.zeros_like(p)
-    e[cell] = 0.1
-    with torch.no_grad():  # same seed, same samples: the image is linear in the pattern
-        fd = (loss(p + e, "mitsuba", spp=8192, seed=3) - loss(p - e, "mitsuba", spp=8192, seed=3)) / 0.2
-    assert abs(grads[-1] - fd.item()) <= 1e-3 * abs(fd.item()) + 1e-7
-    q = p.clone().requires_grad_(True)
-    (g_ref,) = torch.autograd.grad(loss(q, "reference"), q)
-    mean, sem = np.mean(grads), np.std(grads, ddof=1) / 2
-    assert abs(mean - g_ref[cell].item()) <= 4 * sem + 0.01 * abs(g_ref[cell].item())
-
-
-def test_roughness_gradient_matches_finite_differences_and_the_reference(rig):
-    m = textured_material(4, roughness=(0.3, 0.6))
-    p = pt.monograd()[1:2]
-    texel = (0, 0, 1, 2)
-
-    def grad(method, **kw):
-        r = m.roughness.detach().clone().requires_grad_(True)
-        mm = ms.SVBRDF(normal=m.normal, diffuse=m.diffuse, roughness=r, specular=m.specular)
-        (g,) = torch.autograd.grad(ms.render(mm, p, rig, method=method, **kw).sum(), r)
-        return g[texel].item()
-
-    g_mi = np.mean([grad("mitsuba", spp=8192, seed=s) for s in range(2)])
-    g_ref = grad("reference")
-    assert abs(g_mi - g_ref) <= 0.1 * abs(g_ref)
-
-    def value(r):
-        mm = ms.SVBRDF(normal=m.normal, diffuse=m.diffuse, roughness=r, specular=m.specular)
-        return np.mean([ms.render(mm, p, rig, method="mitsuba", spp=8192, seed=s).sum().item() for s in range(2)])
-
-    e = torch.zeros_like(m.roughness)
-    e[texel] = 0.02
-    fd = (value(m.roughness + e) - value(m.roughness - e)) / 0.04  # same seeds: common random numbers
-    assert abs(fd - g_mi) <= 0.1 * abs(g_ref)
-
-
-@pytest.mark.parametrize("case", ["r0.001", "tilt80", "black", "saturated", "single_cell"])
-def test_extremes_give_finite_values_and_gradients(rig, case):
-    m = textured_material(8)
-    maps = {k: v.clone() for k, v in m.maps().items()}
-    p = pt.random(n=2, seed=0)
-    if case == "r0.001":
-        maps["roughness"].fill_(0.001)
-    elif case == "tilt80":
-        t = math.radians(80)
-        maps["normal"] = torch.tensor([math.sin(t), 0.0, math.cos(t)]).view(1, 3, 1, 1).expand(1, 3, 8, 8).clone()
-    elif case == "black":
-        p = torch.zeros(2, 3, 32, 32)
-    elif case == "saturated":
-        p = torch.ones(2, 3, 32, 32)
-    else:
-        p = torch.zeros(2, 3, 32, 32)
-        p[:, :, 16, 16] = 1.0
-    for t in maps.values():
-        t.requires_grad_(True)
-    p = p.requires_grad_(True)
-    img = ms.render(ms.SVBRDF(**maps), p, rig, method="mitsuba", spp=16)
-    assert torch.isfinite(img).all()
-    img.sum().backward()
-    for t in (*maps.values(), p):
-        assert torch.isfinite(t.grad).all()
+# Agreement with the reference, one pass for all patterns and materials, kernel reuse, gradients
+# and the extremes grid are specified for every estimator of the integrator (the default
+# included) in tests/test_integrator_options.py.
 
 
 # ---- bad input ---------------------------------------------------------------------------------

@@ -22,6 +22,9 @@ Parameters:
                      over cv_blocks x cv_blocks blocks of cells (it must divide the LCD's cell
                      counts). More blocks: a closer control variate, more closed-form work per
                      texel (and H W K^2 3 floats of cached geometry).
+    ltc_min_cos_view (float, default 0.1) likewise where cos(theta_v) is below this: at grazing views the
+                     fitted LTC overestimates the lobe's tail several-fold (docs/benchmarks/render_tradeoff.md),
+                     and a control variate that far off makes the residual larger than the integrand.
     light_sampling   (string, default "uniform") how :meth:`render_texels` samples the LCD:
                      "uniform" (area, as the emitter does) or "patterns" (cells by the patterns'
                      brightness, mixed with a uniform share; :class:`_PatternLight`). Adaptive
@@ -276,6 +279,7 @@ class ImportanceIntegrator(mi.SamplingIntegrator):
         self.control_variate = str(props.get("control_variate", "ltc"))
         self.cv_blocks = int(props.get("cv_blocks", 8))
         self.ltc_min_roughness = float(props.get("ltc_min_roughness", 0.1))
+        self.ltc_min_cos_view = float(props.get("ltc_min_cos_view", 0.1))
         self.light_sampling = str(props.get("light_sampling", "uniform"))
         self.uniform_share = float(props.get("uniform_share", 0.25))
         if self.light_sampling not in LIGHT_SAMPLINGS:
@@ -293,6 +297,8 @@ class ImportanceIntegrator(mi.SamplingIntegrator):
             raise ValueError(f"importance integrator: cv_blocks must be >= 1, got {self.cv_blocks}")
         if not self.ltc_min_roughness >= 0.0:
             raise ValueError(f"importance integrator: ltc_min_roughness must be >= 0, got {self.ltc_min_roughness}")
+        if not 0.0 <= self.ltc_min_cos_view < 1.0:
+            raise ValueError(f"importance integrator: ltc_min_cos_view must lie in [0, 1), got {self.ltc_min_cos_view}")
 
     @staticmethod
     def lcd(scene):

@@ -282,6 +282,19 @@ def test_ltc_control_variate_under_a_uniform_pattern_is_the_ltc_specular_image(r
     assert _rel_rmse(spec, ltc) < 1e-4
 
 
+def test_specular_control_variate_is_off_at_grazing_views(rig):
+    """Texels whose view grazes the normal (0 < cos theta_v < the threshold) get no LTC term, the others do."""
+    t = math.radians(66)  # the camera is 20 degrees off the sample normal: views 86 degrees off n
+    cam = rig.camera_position
+    az = math.atan2(float(cam[1]), float(cam[0])) + math.pi
+    m = flat_material(4, roughness=0.5, normal=(math.sin(t) * math.cos(az), math.sin(t) * math.sin(az), math.cos(t)))
+    cos_v = (m.normal.reshape(3, -1).t() * rig.view_directions(4).reshape(-1, 3)).sum(-1)
+    grazing = (cos_v > 0) & (cos_v < 0.1)
+    assert grazing.any() and (~grazing).any()
+    on = control_variate(m, pt.uniform(), rig, mode="ltc", ltc_min_cos_view=0.1).texel[0, :, 7:].abs().amax(-1)
+    assert torch.equal(on == 0, grazing)
+
+
 def test_diffuse_control_variate_is_off_where_the_lcd_crosses_the_horizon(rig):
     lcd = rig.lcd_corners.mean(0)
     az = math.atan2(float(lcd[1]), float(lcd[0])) + math.pi
@@ -297,7 +310,8 @@ def test_diffuse_control_variate_is_off_where_the_lcd_crosses_the_horizon(rig):
                                            ({"control_variate": "pca"}, "control_variate"),
                                            ({"cv_blocks": 0}, "cv_blocks"),
                                            ({"light_sampling": "bright"}, "light_sampling"),
-                                           ({"uniform_share": 0.0}, "uniform_share")])
+                                           ({"uniform_share": 0.0}, "uniform_share"),
+                                           ({"ltc_min_cos_view": 1.0}, "ltc_min_cos_view")])
 def test_bad_integrator_options_are_clear_errors(tmp_path, options, match):
     path = scene_with(tmp_path / "bad.xml", options)
     with pytest.raises(SceneError, match=match):

@@ -21,9 +21,11 @@ disagree. Two terms (either may be switched off by the scene file's integrator o
   view frame of :func:`.ltc.view_frame`) under one radiance per texel and pattern, c_p the block
   radiance times decay where the lobe's peak direction M z meets the LCD (its centre when it
   points away), S = ks (A_1 - A_S) + A_S. Its integral is ``c_p S E(M^-1 LCD)``, the clipped form
-  factor of the warped LCD (:mod:`.polygon`). Switched off below ``ltc_min_roughness``: a
+  factor of the warped LCD (:mod:`.polygon`). Switched off below ``ltc_min_roughness`` (a
   near-mirror LTC lobe that misses the true one by a fraction of its width makes the residual
-  spikier, not smoother.
+  spikier, not smoother) and where cos(theta_v) < ``ltc_min_cos_view`` (at grazing views the LTC
+  overestimates the lobe's tail several-fold, and so large a g makes the residual larger than the
+  integrand: the "tilt=70" column of docs/benchmarks/render_tradeoff.md).
 
 Shapes: B materials, P patterns, texels in row-major (H, W) order. Everything is differentiable
 w.r.t. patterns and maps (torch autograd), as the residual is on the plugin's side.
@@ -116,7 +118,7 @@ def _peak_block(rig: Rig, x: Tensor, d: Tensor, k: int) -> tuple[Tensor, Tensor]
 
 
 def control_variate(svbrdf, patterns: Tensor, rig: Rig, *, mode: str = "ltc", blocks: int = 8,
-                    ltc_min_roughness: float = 0.1) -> ControlVariate:
+                    ltc_min_roughness: float = 0.1, ltc_min_cos_view: float = 0.0) -> ControlVariate:
     """The control variate of B materials under P patterns ((P, 3, h, w) or (B, P, 3, h, w)).
 
     ``mode``: "diffuse" or "ltc" (diffuse + specular); ``blocks``: K; see the module docstring.
@@ -166,7 +168,7 @@ def control_variate(svbrdf, patterns: Tensor, rig: Rig, *, mode: str = "ltc", bl
         peak = torch.nn.functional.normalize(torch.stack([-bb, torch.zeros_like(a), a], -1)
                                              * torch.sign(a - bb * d)[:, None], dim=-1)
         block, decay = _peak_block(rig, x.repeat(B, 1), (frame * peak[..., None]).sum(1), blocks)
-        use = ok.reshape(-1) & (r.reshape(-1) >= ltc_min_roughness)
+        use = ok.reshape(-1) & (r.reshape(-1) >= ltc_min_roughness) & (cos_v.reshape(-1) >= ltc_min_cos_view)
         ksf = ks.reshape(-1, 3)
         s = torch.where(use[:, None], ksf * (a_one - a_s)[:, None] + a_s[:, None], torch.zeros_like(ksf))
         lb = lbar.permute(0, 3, 1, 2).reshape(B * blocks * blocks, P, 3)  # (B K^2, P, 3)

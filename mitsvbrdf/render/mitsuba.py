@@ -93,7 +93,8 @@ def render_mitsuba(svbrdf, patterns: Tensor, rig: Rig, *, spp: int = 64, seed: i
     cv = None
     if integrator.control_variate != "none":
         cv = control_variate(svbrdf, patterns, rig, mode=integrator.control_variate,
-                             blocks=integrator.cv_blocks, ltc_min_roughness=integrator.ltc_min_roughness)
+                             blocks=integrator.cv_blocks, ltc_min_roughness=integrator.ltc_min_roughness,
+                             ltc_min_cos_view=integrator.ltc_min_cos_view)
 
     @dr.wrap(source="torch", target="drjit")
     def batch(normal, diffuse, roughness, specular, drive, seed_value, block_rad, coeffs):

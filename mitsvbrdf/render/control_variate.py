@@ -82,21 +82,23 @@ def _block_uv(k: int, dtype=torch.float64) -> Tensor:
 
 @lru_cache(maxsize=8)
 def _block_form_factors(rig: Rig, height: int, width: int, k: int) -> Tensor:
-    """(H * W, K * K, 3) Phi'_b(x) = e_b(x) Phi_b(x) in world coordinates, float32 (geometry only)."""
+    """(3, H * W, K * K) Phi'_b(x) = e_b(x) Phi_b(x), world axes first, float32 (geometry only;
+    computed in chunks of texels, the float64 corner vectors of all blocks would not fit at 256 px)."""
     lcd = rig.lcd_geometry(dtype=torch.float64)
     verts = lcd.point(_block_uv(k))  # (k+1, k+1, 3)
     quads = torch.stack([verts[:-1, :-1], verts[:-1, 1:], verts[1:, 1:], verts[1:, :-1]], 2).reshape(-1, 4, 3)
-    x = rig.surface_points((height, width)).double().reshape(-1, 3)
-    rel = quads[None] - x[:, None, None]  # (N, K^2, 4, 3)
-    phi = polygon_vector_form_factor(rel)
-    centre = rel.mean(2)
-    phi = phi * torch.sign((phi * centre).sum(-1, keepdim=True))  # towards the block
+    points = rig.surface_points((height, width)).double().reshape(-1, 3)
     uv = (_block_uv(k)[:-1, :-1] + 0.5 / k).reshape(-1, 2)
-    cos_emit = (torch.nn.functional.normalize(-centre, dim=-1) @ lcd.normal)
-    decay = rig.display.decay(uv.expand(x.shape[0], -1, -1), cos_emit)
-    if decay is not None:
-        phi = phi * decay[..., None]
-    return phi.float()
+    out = []
+    for x in points.split(4096):
+        rel = quads[None] - x[:, None, None]  # (n, K^2, 4, 3)
+        phi = polygon_vector_form_factor(rel)
+        centre = rel.mean(2)
+        phi = phi * torch.sign((phi * centre).sum(-1, keepdim=True))  # towards the block
+        cos_emit = (torch.nn.functional.normalize(-centre, dim=-1) @ lcd.normal)
+        decay = rig.display.decay(uv.expand(x.shape[0], -1, -1), cos_emit)
+        out.append(phi if decay is None else phi * decay[..., None])
+    return torch.cat(out).permute(2, 0, 1).float().contiguous()
 
 
 def _peak_block(rig: Rig, x: Tensor, d: Tensor, k: int) -> tuple[Tensor, Tensor]:
@@ -146,8 +148,9 @@ def control_variate(svbrdf, patterns: Tensor, rig: Rig, *, mode: str = "ltc", bl
     above = ((n[:, None] * (corners[:, None] - x[None])[None]).sum(-1) > 0).all(1)
     kdd = torch.where((ok & above)[..., None], kd * (1 - ks), torch.zeros_like(kd))  # (B, N, 3)
 
-    phi = _block_form_factors(rig, H, W, blocks).to(dev, dt)  # (N, K^2, 3)
-    ff = (n[:, :, None] * phi[None]).sum(-1)  # (B, N, K^2)
+    phi = _block_form_factors(rig, H, W, blocks).to(dev, dt)  # (3, N, K^2)
+    ff = n[:, :, 0:1] * phi[0]  # n . Phi_b: (B, N, K^2), one temporary
+    ff.addcmul_(n[:, :, 1:2], phi[1]).addcmul_(n[:, :, 2:3], phi[2])
     known = torch.bmm(ff, lbar.reshape(B, P * 3, -1).transpose(1, 2)).reshape(B, -1, P, 3)
     known = kdd[:, None] * known.permute(0, 2, 1, 3)  # (B, P, N, 3)
 

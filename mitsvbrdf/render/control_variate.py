@@ -27,14 +27,14 @@ disagree. Two terms (either may be switched off by the scene file's integrator o
   overestimates the lobe's tail several-fold, and so large a g makes the residual larger than the
   integrand: the "tilt=70" column of docs/benchmarks/render_tradeoff.md).
 
-Rejected alternatives: the closed form inside the plugin, as one Dr.Jit kernel with the K x K
-block polygons unrolled, compiled for about a second per block on the LLVM backend (minutes at
-K = 8), and a per-block contraction there cost more in gathers than the whole render; torch does
-the contraction as one batched matrix product. A specular term resolved per block (K^2 clipped LTC
-polygons per texel) would follow sparse patterns under wide lobes, but costs K^2 times the one
-polygon per texel used here. Choosing c_p as the lobe-weighted mean of the block radiances instead
-of the radiance at the peak changed the error by under 2% on the procedural study, so the
-simpler choice stays.
+Rejected alternatives (tried during development, not kept as options): the closed form inside
+the plugin, as one Dr.Jit kernel with the K x K block polygons unrolled, took the LLVM backend
+seconds per block to compile, and a per-block contraction there cost more in gathers than the
+whole render; torch does the contraction as one batched matrix product. A specular term resolved
+per block (K^2 clipped LTC polygons per texel) would follow sparse patterns under wide lobes, but
+costs K^2 times the one polygon per texel used here. Choosing c_p as the lobe-weighted mean of
+the block radiances instead of the radiance at the peak left the procedural study's errors about
+where they were, so the simpler choice stays.
 
 Shapes: B materials, P patterns, texels in row-major (H, W) order. Everything is differentiable
 w.r.t. patterns and maps (torch autograd), as the residual is on the plugin's side.

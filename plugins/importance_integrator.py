@@ -160,7 +160,7 @@ class _ControlVariate:
         self.frame = ViewFrame(n, wi)
         T = lcd.to_world()
         self.to_world = mi.Transform4f(T)
-        self.lcd_n = mi.Vector3f(dr.normalize(mi.ScalarVector3f(T @ mi.ScalarNormal3f(0.0, 0.0, 1.0))))
+        self.lcd_n = lcd.normal()
 
     def _decay(self, p_world, u, v):
         """e_b(x): the emission decay of the LCD point (u, v) towards the shading point."""
@@ -223,7 +223,7 @@ class _PatternLight:
         self.to_world = mi.Transform4f(T)
         eu, ev = T @ mi.ScalarVector3f(2.0, 0.0, 0.0), T @ mi.ScalarVector3f(0.0, 2.0, 0.0)
         self.area = dr.norm(dr.cross(eu, ev))
-        self.normal = mi.Vector3f(dr.normalize(mi.ScalarVector3f(T @ mi.ScalarNormal3f(0.0, 0.0, 1.0))))
+        self.normal = lcd.normal()
 
     def _pdf_area(self, cell, active):
         w = dr.gather(mi.Float, self.w, self.b * self.C + cell, active)

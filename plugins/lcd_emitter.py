@@ -126,31 +126,14 @@ class LCDEmitter(mi.Emitter):
     def has_decay(self) -> bool:
         return self.cos_power is not None or self.gradient is not None
 
-    def block_radiance(self, k_rows: int, k_cols: int) -> mi.Color3f:
-        """Mean emitted radiance (before decay) of every block of cells, for every pattern: a
-        Color3f array of P * k_rows * k_cols entries, index (p * k_rows + block row) * k_cols +
-        block column. Blocks are (h / k_rows) x (w / k_cols) cells; differentiable w.r.t. ``data``."""
-        if self.h % k_rows or self.w % k_cols:
-            raise ValueError(f"lcd: {k_rows} x {k_cols} blocks do not tile the {self.h} x {self.w} cells")
-        sh, sw = self.h // k_rows, self.w // k_cols
-        cells = self.h * self.w
-        idx = dr.arange(mi.UInt32, self.pattern_count * k_rows * k_cols)
-        p = idx // (k_rows * k_cols)
-        blk = idx - p * (k_rows * k_cols)
-        bi, bj = blk // k_cols, blk % k_cols
-        total = mi.Color3f(0.0)
-        for si in range(sh):
-            for sj in range(sw):
-                cell = (bi * sh + si) * self.w + bj * sw + sj
-                base = p * (3 * cells) + cell
-                rgb = [dr.gather(mi.Float, self.data.array, base + c * cells) for c in range(3)]
-                total += self._drive_to_radiance(rgb)
-        return total / (sh * sw)
-
     def to_world(self) -> mi.ScalarTransform4f:
         """The LCD rectangle's placement: local (-1, -1) is cell (0, 0)'s corner, +x the columns."""
         m = mi.traverse(self.get_shape())["to_world"].matrix
         return mi.ScalarTransform4f([[float(m[i][j][0]) for j in range(4)] for i in range(4)])
+
+    def normal(self) -> mi.Vector3f:
+        """The LCD's unit normal in world space (the side it emits into, towards the sample)."""
+        return mi.Vector3f(dr.normalize(mi.ScalarVector3f(self.to_world() @ mi.ScalarNormal3f(0.0, 0.0, 1.0))))
 
     # ---- Mitsuba emitter interface ------------------------------------------------------------
 

@@ -20,7 +20,8 @@ from mitsvbrdf.data.datasets import (MapFolderDataset, ProceduralDataset, StripD
 from mitsvbrdf.data.procedural import generate, height_to_normal
 from mitsvbrdf.errors import ImageFileError, MaterialError
 
-SAMPLES = Path(__file__).resolve().parents[2] / "shared" / "data" / "svbrdf_samples"
+from conftest import SAMPLES, needs_samples
+
 MAPS = ("normal", "diffuse", "roughness", "specular")
 # the square's 8 symmetries as (k, hflip), plus a lone vertical flip
 SYMMETRIES = [(k, h, False) for k in range(4) for h in (False, True)] + [(0, False, True), (1, False, True)]
@@ -136,7 +137,7 @@ def test_procedural_dataloader_batches_equal_single_items():
 # ---- strips ----------------------------------------------------------------------------------------
 
 
-@pytest.mark.skipif(not SAMPLES.is_dir(), reason="shared samples not present")
+@needs_samples
 def test_shared_samples_load_through_the_strip_dataset_in_tile_order():
     ds = StripDataset(SAMPLES, crop=None)
     assert [p.name for p in ds.paths] == [f"{k}_svbrdf.png" for k in range(4)]  # README/LICENSE ignored
@@ -153,7 +154,7 @@ def test_shared_samples_load_through_the_strip_dataset_in_tile_order():
         assert item["name"] == f"{k}_svbrdf" and "render" not in item
 
 
-@pytest.mark.skipif(not SAMPLES.is_dir(), reason="shared samples not present")
+@needs_samples
 def test_shared_samples_batch_through_a_dataloader_with_random_crops():
     ds = StripDataset(SAMPLES, crop=128, augment=aug.Augment())
     with warnings.catch_warnings():

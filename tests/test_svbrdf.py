@@ -14,8 +14,8 @@ from mitsvbrdf import imageio
 from mitsvbrdf.errors import ImageFileError, MaterialError
 from mitsvbrdf.svbrdf import MAP_NAMES, SVBRDF, decode_maps, encode_maps
 
-SAMPLES = Path("/work/shared/data/svbrdf_samples")
-needs_samples = pytest.mark.skipif(not (SAMPLES / "0_svbrdf.png").is_file(), reason="shared samples not present")
+from conftest import SAMPLES, needs_samples
+
 
 
 def _material(size: int = 8, seed: int = 0, batch: int = 1) -> SVBRDF:

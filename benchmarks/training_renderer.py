@@ -117,12 +117,12 @@ def score(networks: Path, materials, rig) -> dict[str, list[float]]:
 
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
-    ap.add_argument("--steps", type=int, default=600)
+    ap.add_argument("--steps", type=int, default=900)
     ap.add_argument("--size", type=int, default=64)
     ap.add_argument("--width", type=int, default=16)
     ap.add_argument("--eval-n", type=int, default=16)
     ap.add_argument("--runs", default=",".join(RUNS), help="comma-separated subset of " + ", ".join(RUNS))
-    ap.add_argument("--seeds", default="4", help="comma-separated training seeds (4: the config's)")
+    ap.add_argument("--seeds", default="4,5", help="comma-separated training seeds (4: the config's)")
     ap.add_argument("--skip-reference", action="store_true")
     ap.add_argument("--no-probe", action="store_true", help="leave out the seconds-per-step probes")
     ap.add_argument("--eval-only", action="store_true")
@@ -182,7 +182,8 @@ def main() -> None:
         row.update({k: round(sum(v) / len(v), 5) for k, v in sc.items()})
         rows.append(row)
         print(row, flush=True)
-    lines = [f"G_sc (fixed MonoGrad, {args.size} px, width {args.width}, {args.steps} steps, batch 4, seeds "
+    lines = ["Command: `python benchmarks/training_renderer.py " + " ".join(sys.argv[1:]) + "`", "",
+             f"G_sc (fixed MonoGrad, {args.size} px, width {args.width}, {args.steps} steps, batch 4, seeds "
              f"{args.seeds}) trained on captures from each renderer; map RMSE (encoded maps) on {args.eval_n} held-out "
              f"procedural materials whose captures come from the reference renderer, mean over seeds and materials "
              f"({torch.get_num_threads()} threads for the step times).", "",

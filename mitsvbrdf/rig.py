@@ -113,6 +113,18 @@ class LcdGeometry:
         """World positions (..., 3) of LCD coordinates uv (..., 2) in [0, 1]^2."""
         return self.origin + uv[..., :1] * self.edge_u + uv[..., 1:2] * self.edge_v
 
+    def hit(self, x: Tensor, d: Tensor) -> tuple[Tensor, Tensor, Tensor]:
+        """Where rays x + t d (N, 3) meet the LCD's plane: (uv (N, 2), not clamped to the LCD;
+        distance t (N,); front (N,), whether the ray runs towards the emitting side). Rays that
+        do not get t = -(distance of x from the plane) and front = False."""
+        denom = d @ self.normal
+        front = denom < -1e-6
+        t = ((self.origin - x) @ self.normal) / torch.where(front, denom, -torch.ones_like(denom))
+        rel = x + t[:, None] * d - self.origin
+        uv = torch.stack([rel @ self.edge_u / (self.edge_u @ self.edge_u),
+                          rel @ self.edge_v / (self.edge_v @ self.edge_v)], -1)
+        return uv, t, front
+
 
 def _fmt(v: object) -> str:
     """A display-model value for a message: numbers as written, nested sequences flattened."""

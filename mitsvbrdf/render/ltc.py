@@ -101,11 +101,8 @@ def prefiltered_lookup(x: Tensor, n: Tensor, wo: Tensor, m_inv: Tensor, spread: 
     f = f * torch.where(f[:, 2:] < 0, -1.0, 1.0)
     d = torch.linalg.solve(m_inv, f.unsqueeze(-1)).squeeze(-1)
     d = torch.nn.functional.normalize(torch.einsum("nak,na->nk", frame, d), dim=-1)
-    denom = (d @ lcd.normal)
-    dist = ((lcd.origin - x) @ lcd.normal) / torch.where(denom < -1e-6, denom, -torch.ones_like(denom))
-    rel = x + dist[:, None] * d - lcd.origin
-    uv = torch.stack([rel @ lcd.edge_u / (lcd.edge_u @ lcd.edge_u),
-                      rel @ lcd.edge_v / (lcd.edge_v @ lcd.edge_v)], -1).clamp(0, 1)
+    uv, dist, _ = lcd.hit(x, d)
+    uv = uv.clamp(0, 1)
     h, w = rig.lcd_cells
     cell = torch.sqrt(lcd.area / (h * w))
     footprint = 2.0 * dist.abs() * torch.tan(spread.clamp(1e-4, 1.4))

@@ -53,9 +53,6 @@ from .ltc import view_frame
 from .ltc_fit import default_table
 from .polygon import clipped_polygon_vector_form_factor, polygon_vector_form_factor
 
-MODES = ("none", "diffuse", "ltc")
-
-
 @dataclass
 class ControlVariate:
     """Per-texel coefficients of g_p for the plugin and its exact integral.
@@ -114,22 +111,18 @@ def _peak_block(rig: Rig, x: Tensor, d: Tensor, k: int) -> tuple[Tensor, Tensor]
     """Block index (N,) where rays x + t d (world, N x 3) meet the LCD (its centre when they point
     away from it), and the decay factor of that block's centre towards x (N,)."""
     lcd = rig.lcd_geometry(x.device, x.dtype)
-    denom = d @ lcd.normal
-    front = denom < -1e-6
-    t = ((lcd.origin - x) @ lcd.normal) / torch.where(front, denom, -torch.ones_like(denom))
-    rel = x + t[:, None] * d - lcd.origin
-    uv = torch.stack([rel @ lcd.edge_u / (lcd.edge_u @ lcd.edge_u), rel @ lcd.edge_v / (lcd.edge_v @ lcd.edge_v)], -1)
+    uv, _, front = lcd.hit(x, d)
     uv = torch.where(front[:, None], uv, torch.full_like(uv, 0.5))
     ij = (uv * k).floor().clamp(0, k - 1)
     block = (ij[:, 1] * k + ij[:, 0]).long()
     centre_uv = (ij + 0.5) / k
     to_x = torch.nn.functional.normalize(x - lcd.point(centre_uv), dim=-1)
     decay = rig.display.decay(centre_uv, to_x @ lcd.normal)
-    return block, (torch.ones_like(denom) if decay is None else decay)
+    return block, (torch.ones_like(front, dtype=x.dtype) if decay is None else decay)
 
 
 def control_variate(svbrdf, patterns: Tensor, rig: Rig, *, mode: str = "ltc", blocks: int = 8,
-                    ltc_min_roughness: float = 0.1, ltc_min_cos_view: float = 0.0) -> ControlVariate:
+                    ltc_min_roughness: float = 0.1, ltc_min_cos_view: float = 0.1) -> ControlVariate:
     """The control variate of B materials under P patterns ((P, 3, h, w) or (B, P, 3, h, w)).
 
     ``mode``: "diffuse" or "ltc" (diffuse + specular); ``blocks``: K; see the module docstring.

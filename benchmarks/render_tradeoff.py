@@ -181,7 +181,7 @@ def main() -> None:
     ap.add_argument("--time-size", type=int, default=128)
     ap.add_argument("--procedural-n", type=int, default=4)
     ap.add_argument("--procedural-size", type=int, default=64)
-    ap.add_argument("--skip-ltc-exact", action="store_true", help="leave out LTC-exact (20 s per timing at 128 px)")
+    ap.add_argument("--skip-ltc-exact", action="store_true", help="leave out LTC-exact (by far the slowest method at 128 px)")
     ap.add_argument("--quick", action="store_true")
     ap.add_argument("--out", type=Path, default=ROOT / "docs" / "benchmarks")
     args = ap.parse_args()

@@ -1,6 +1,6 @@
 """Training losses (paper Sec. 3.5, Eq. 6-8).
 
-* :func:`map_l1`: L_r, L1 between encoded maps (B, 10, H, W).
+* :func:`map_l1`: L_r, L1 between encoded maps (B, 10, H, W), optionally weighted per map.
 * :func:`inverse_importance_loss`: L_inv, L1 of G_l's inverse head against the true normal and
   roughness.
 * :func:`importance_consistency_loss`: L_c = 1 - MS-SSIM_cs(grey(L_0 + sum_i L_i) / P, L_pdf),
@@ -18,6 +18,8 @@ finite, with finite gradients.
 
 from __future__ import annotations
 
+import math
+
 import torch
 import torch.nn.functional as F
 from torch import Tensor
@@ -25,9 +27,34 @@ from torch import Tensor
 C2 = 0.03 ** 2
 
 
-def map_l1(pred: Tensor, gt: Tensor) -> Tensor:
-    """Mean absolute difference of encoded maps (B, 10, H, W)."""
-    return (pred - gt).abs().mean()
+#: Per-map weights of :func:`map_l1` in the order of the encoded channels; all ones is the paper's L1.
+PLAIN_MAP_WEIGHTS = (1.0, 1.0, 1.0, 1.0)
+
+
+def map_weight_channels(weights, device=None, dtype=torch.float32) -> Tensor:
+    """(normal, diffuse, roughness, specular) weights -> (10,) per encoded channel (3, 3, 1, 3)."""
+    if len(weights) != 4 or any(not math.isfinite(w) or w < 0 for w in weights) or sum(weights) <= 0:
+        raise ValueError(f"map weights must be 4 finite numbers >= 0 (normal, diffuse, roughness, specular), "
+                         f"not all 0; got {list(weights)}")
+    n, d, r, s = (float(w) for w in weights)
+    return torch.tensor([n] * 3 + [d] * 3 + [r] + [s] * 3, device=device, dtype=dtype)
+
+
+def map_l1(pred: Tensor, gt: Tensor, weights=PLAIN_MAP_WEIGHTS) -> Tensor:
+    """Mean absolute difference of encoded maps (B, 10, H, W), each map's channels scaled by its
+    weight in ``weights`` (normal, diffuse, roughness, specular).
+
+    The weighted loss is ``mean_c(w_c |pred_c - gt_c|)``: all ones is the paper's L_r, and raising
+    one weight raises that map's gradient without lowering the others' (no renormalisation, so the
+    learning rate keeps its meaning for the unweighted maps). Why weight at all: at the step
+    counts a CPU affords, plain L1 leaves the normal map flat for hundreds of steps, because a
+    flat normal is already within a few hundredths of most maps (train/README.md).
+    """
+    diff = (pred - gt).abs()
+    if tuple(weights) == PLAIN_MAP_WEIGHTS:
+        return diff.mean()
+    w = map_weight_channels(weights, diff.device, diff.dtype)
+    return (diff * w[:, None, None]).mean()
 
 
 def inverse_importance_loss(normal: Tensor, roughness: Tensor, gt_normal: Tensor, gt_roughness: Tensor) -> Tensor:

@@ -29,7 +29,7 @@ from torch import Tensor, nn
 
 from ..errors import MitsvbrdfError
 from ..importance import importance
-from ..losses import importance_consistency_loss, inverse_importance_loss, map_l1
+from ..losses import PLAIN_MAP_WEIGHTS, importance_consistency_loss, inverse_importance_loss, map_l1
 from ..nets import (Initializer, LearnedPattern, LightingPredictor, PatternSet, PointPredictor, SVBRDFPredictor,
                     network_from_record)
 from ..patterns import load_patterns, prepend_pattern
@@ -123,6 +123,7 @@ class InitModel:
 @dataclass
 class InitLoss:
     maps: float = 1.0
+    map_weights: list[float] = field(default_factory=lambda: list(PLAIN_MAP_WEIGHTS))
 
 
 class InitStage(TrainingStage):
@@ -136,7 +137,7 @@ class InitStage(TrainingStage):
     def forward(self, batch: SVBRDF, seed: int) -> dict[str, Tensor]:
         g = _generator(seed, batch.device)
         _, i0 = self.first_image(batch, seed, g)
-        l_maps = map_l1(self.nets["initializer"](i0), batch.encoded())
+        l_maps = map_l1(self.nets["initializer"](i0), batch.encoded(), self.loss_cfg.map_weights)
         return {"loss": self.loss_cfg.maps * l_maps, "maps": l_maps}
 
 
@@ -161,6 +162,7 @@ class AdaptiveLoss:
     consistency: float = 1.0
     inverse: float = 0.5
     reconstruction: float = 1.0
+    map_weights: list[float] = field(default_factory=lambda: list(PLAIN_MAP_WEIGHTS))
 
 
 @dataclass
@@ -227,7 +229,7 @@ class Stage1(AdaptiveStage):
         patterns, images, losses = self.adaptive_captures(batch, seed)
         irradiance = diffuse_irradiance(patterns, self.rig, batch.resolution)
         pred = self.nets["point"](images, irradiance, patterns)
-        losses["reconstruction"] = map_l1(pred, batch.encoded())
+        losses["reconstruction"] = map_l1(pred, batch.encoded(), self.loss_cfg.map_weights)
         return self.total(losses)
 
 
@@ -243,7 +245,7 @@ class Stage2(AdaptiveStage):
     def forward(self, batch: SVBRDF, seed: int) -> dict[str, Tensor]:
         patterns, images, losses = self.adaptive_captures(batch, seed)
         pred = reconstruct_maps(self.nets["svbrdf"], images, patterns, self.rig)
-        losses["reconstruction"] = map_l1(pred, batch.encoded())
+        losses["reconstruction"] = map_l1(pred, batch.encoded(), self.loss_cfg.map_weights)
         return self.total(losses)
 
 
@@ -256,7 +258,8 @@ class Finetune(Stage2):
     def forward(self, batch: SVBRDF, seed: int) -> dict[str, Tensor]:
         with torch.no_grad():
             patterns, images, _ = self.adaptive_captures(batch, seed)
-        rec = map_l1(reconstruct_maps(self.nets["svbrdf"], images, patterns, self.rig), batch.encoded())
+        rec = map_l1(reconstruct_maps(self.nets["svbrdf"], images, patterns, self.rig), batch.encoded(),
+                     self.loss_cfg.map_weights)
         return {"loss": self.loss_cfg.reconstruction * rec, "reconstruction": rec}
 
 
@@ -278,6 +281,7 @@ class FixedModel:
 @dataclass
 class FixedLoss:
     reconstruction: float = 1.0
+    map_weights: list[float] = field(default_factory=lambda: list(PLAIN_MAP_WEIGHTS))
 
 
 class FixedStage(TrainingStage):
@@ -323,7 +327,7 @@ class FixedStage(TrainingStage):
             with torch.set_grad_enabled(self.model_cfg.learn_patterns):
                 images = self.capture(batch, pats, seed, g)
             pred = reconstruct_maps(self.nets["svbrdf"], images, pats, self.rig)
-        rec = map_l1(pred, batch.encoded())
+        rec = map_l1(pred, batch.encoded(), self.loss_cfg.map_weights)
         return {"loss": self.loss_cfg.reconstruction * rec, "reconstruction": rec}
 
 

@@ -11,7 +11,9 @@ Layout (every key optional except ``stage``; defaults below)::
     [render]   method = "mitsuba" | "ltc" | "reference"; spp; [render.noise] shot, read, bits
     [model]    the stage's own options (see mitsvbrdf.training.stages: *Model dataclasses)
     [loss]     the stage's loss weights (*Loss dataclasses)
-    [train]    steps, batch, lr, lr_min, weight_decay, grad_clip, checkpoint_every, log_every, device
+    [train]    steps, batch, lr, lr_min, weight_decay, grad_clip, checkpoint_every, log_every, device,
+               time_budget (seconds of training; 0: none. With a budget the cosine schedule runs on
+               the elapsed fraction of it, and steps is only an upper bound)
     [pretrained]  networks = "runs/init/networks.pt"  (an earlier stage's export)
 
 Procedural materials are drawn by global index from the generator seeded with ``seed``; the
@@ -75,6 +77,7 @@ class TrainConfig:
     checkpoint_every: int = 50
     log_every: int = 10
     device: str = "auto"
+    time_budget: float = 0.0
 
 
 @dataclass
@@ -142,6 +145,23 @@ def build(cls: type, table: dict, path: str) -> Any:
     return cls(**kwargs)
 
 
+def parse_duration(text: str | float | int) -> float:
+    """A duration in seconds from ``"2h"``, ``"90m"``, ``"1h30m"``, ``"45s"`` or a number of seconds."""
+    if isinstance(text, (int, float)) and not isinstance(text, bool):
+        seconds = float(text)
+    else:
+        import re
+
+        raw = str(text).strip().lower()
+        parts = re.fullmatch(r"(?:(\d+(?:\.\d+)?)h)?(?:(\d+(?:\.\d+)?)m)?(?:(\d+(?:\.\d+)?)s?)?", raw)
+        if not raw or parts is None:
+            raise ConfigError(f"time budget {text!r}: expected e.g. 2h, 90m, 1h30m, 45s or seconds")
+        seconds = sum(float(v) * u for v, u in zip(parts.groups(), (3600.0, 60.0, 1.0)) if v)
+    if not math.isfinite(seconds) or seconds <= 0:
+        raise ConfigError(f"time budget {text!r}: must be a positive duration")
+    return seconds
+
+
 def parse_override(text: str) -> tuple[list[str], Any]:
     """``train.steps=10`` -> (["train", "steps"], 10); values are parsed as TOML."""
     if "=" not in text:
@@ -204,10 +224,19 @@ def _check_values(cfg: Config) -> None:
               (cfg.render.noise.read >= 0, "render.noise.read", ">= 0"),
               (cfg.render.noise.bits >= 0, "render.noise.bits", ">= 0"),
               (cfg.render.noise.white > 0, "render.noise.white", "> 0"),
-              (cfg.render.spp >= 1, "render.spp", ">= 1"), (cfg.train.lr > 0, "train.lr", "> 0")]
+              (cfg.render.spp >= 1, "render.spp", ">= 1"), (cfg.train.lr > 0, "train.lr", "> 0"),
+              (cfg.train.time_budget >= 0, "train.time_budget", ">= 0 seconds (0: no budget)")]
     for ok, key, want in checks:
         if not ok:
             raise ConfigError(f"{key}: must be {want}")
+    weights = getattr(cfg.loss, "map_weights", None)
+    if weights is not None:
+        from ..losses import map_weight_channels
+
+        try:
+            map_weight_channels(weights)
+        except ValueError as e:
+            raise ConfigError(f"loss.map_weights: {e}") from None
     if cfg.data.source != "procedural" and not cfg.data.root:
         raise ConfigError(f"data.root: needed for data.source = {cfg.data.source!r}")
 

@@ -56,7 +56,8 @@ RUN_FILES = ("checkpoint.pt", "networks.pt", "metrics.csv", "loss.png")
 #: Config keys that may differ when a run is resumed: where the run lives and how it is watched,
 #: and train.steps, which may grow (not below the checkpoint's step). Anything else changes what
 #: the earlier steps computed, so --resume refuses it.
-RESUMABLE_CHANGES = ("out", "train.steps", "train.checkpoint_every", "train.log_every", "train.device")
+RESUMABLE_CHANGES = ("out", "train.steps", "train.checkpoint_every", "train.log_every", "train.device",
+                     "train.time_budget")
 
 
 def _flatten(table: dict, prefix: str = "") -> dict:
@@ -158,7 +159,8 @@ class Trainer:
         groups = [g for g in self.stage.param_groups(cfg.train.lr) if g["params"]]
         if not groups:
             raise TrainingError(f"stage {cfg.stage!r} has nothing to train")
-        self.opt = torch.optim.Adam(groups, lr=cfg.train.lr, weight_decay=cfg.train.weight_decay)
+        # foreach: one multi-tensor update instead of a Python loop over ~100 small parameters
+        self.opt = torch.optim.Adam(groups, lr=cfg.train.lr, weight_decay=cfg.train.weight_decay, foreach=True)
         self.sched = torch.optim.lr_scheduler.CosineAnnealingLR(self.opt, cfg.train.steps, eta_min=cfg.train.lr_min)
         self.model = self.stage
         if self.world > 1:
@@ -167,6 +169,8 @@ class Trainer:
                 find_unused_parameters=True)
         self.dataset = make_dataset(cfg)
         self.step = 0
+        self.elapsed = 0.0     # seconds spent in the loop, over all resumed runs
+        self.finished = False  # the run reached train.steps or spent its time budget
         self.history: list[dict] = []
         self._stop = False
         self._signal: int | None = None
@@ -237,6 +241,8 @@ class Trainer:
         torch.set_rng_state(ck["rng"].cpu())
         self.step = ck["step"]
         self.history = ck["history"]
+        self.elapsed = float(ck.get("elapsed", 0.0))
+        self.finished = bool(ck.get("finished", False))
 
     def save_checkpoint(self) -> None:
         if self.rank != 0:
@@ -244,7 +250,8 @@ class Trainer:
         self.out.mkdir(parents=True, exist_ok=True)
         ck = {"stage": self.stage.state_dict(), "optimizer": self.opt.state_dict(),
               "scheduler": self.sched.state_dict(), "rng": torch.get_rng_state(), "step": self.step,
-              "history": self.history, "config": config_table(self.cfg)}
+              "history": self.history, "config": config_table(self.cfg), "elapsed": self.elapsed,
+              "finished": self.finished}
         _plain(ck)  # what _load_checkpoint reads with weights_only=True
         tmp = self.checkpoint_path.with_suffix(".tmp")
         torch.save(ck, tmp)
@@ -299,6 +306,17 @@ class Trainer:
         items = fetch(idx) if fetch else [self.dataset[i] for i in idx]
         return collate_svbrdf(items).to(self.device)
 
+    def budget_spent(self) -> bool:
+        budget = self.cfg.train.time_budget
+        return budget > 0 and self.elapsed >= budget
+
+    def _budget_lr(self) -> None:
+        """The cosine schedule on the elapsed fraction of the time budget (module docstring)."""
+        cfg = self.cfg.train
+        f = min(self.elapsed / cfg.time_budget, 1.0)
+        for group, base in zip(self.opt.param_groups, self.sched.base_lrs):
+            group["lr"] = cfg.lr_min + (base - cfg.lr_min) * 0.5 * (1.0 + math.cos(math.pi * f))
+
     def _handle(self, signum, frame) -> None:
         if self._stop:  # a second signal: stop now, without the checkpoint of the step in flight
             raise KeyboardInterrupt
@@ -313,8 +331,11 @@ class Trainer:
         bar = tqdm(total=cfg.steps, initial=self.step, desc=self.cfg.stage, disable=not self.progress)
         t0, last = time.perf_counter(), {}
         t_log, step_log = t0, self.step
+        elapsed0 = self.elapsed
         try:
-            while self.step < cfg.steps:
+            while self.step < cfg.steps and not self.budget_spent():
+                if cfg.time_budget > 0:
+                    self._budget_lr()
                 batch = self.batch(self.step)
                 losses = self.model(batch, step_seed(self.cfg.seed, self.step, self.rank))
                 self.opt.zero_grad(set_to_none=True)
@@ -325,14 +346,15 @@ class Trainer:
                 self.opt.step()
                 self.sched.step()
                 self.step += 1
+                now = time.perf_counter()
+                self.elapsed = elapsed0 + (now - t0)
                 bar.update(1)
-                if self.step % cfg.log_every == 0 or self.step == cfg.steps:
-                    now = time.perf_counter()
+                if self.step % cfg.log_every == 0 or self.step == cfg.steps or self.budget_spent():
                     rate = (self.step - step_log) / max(now - t_log, 1e-9)
                     t_log, step_log = now, self.step
                     last = {"step": self.step, **{k: float(v.detach()) for k, v in losses.items()},
-                            "lr": self.sched.get_last_lr()[0], "it_per_s": round(rate, 3),
-                            "seconds": round(now - t0, 2)}
+                            "lr": self.opt.param_groups[0]["lr"], "it_per_s": round(rate, 3),
+                            "seconds": round(self.elapsed, 2)}
                     self.history.append(last)
                     bar.set_postfix(loss=f"{last['loss']:.4f}")
                 if self.step % cfg.checkpoint_every == 0:
@@ -340,8 +362,10 @@ class Trainer:
                 if self._stop or (self.stop_after is not None and self.step >= self.stop_after):
                     self.save_checkpoint()
                     if self._stop:
+                        self.export()
                         raise TrainingInterrupted(self._signal, self.step, self.checkpoint_path)
                     return last
+            self.finished = True
             self.save_checkpoint()
             self.export()
             return last

@@ -7,8 +7,10 @@ Commands:
              [--adaptive NAME=NETWORKS ...] [--uniform-lpdf NAME=NETWORKS ...]
         Map and re-rendering metrics of the adaptive method, its variants and the baselines;
         tables, figures, HTML.
-    train CONFIG [--resume | --overwrite] [--set key=value ...] [--out DIR]
+    train CONFIG [--resume | --overwrite] [--set key=value ...] [--out DIR] [--time-budget 2h]
         Train one stage of the method (init, stage1, stage2, finetune, fixed) from a TOML config.
+    train-chain CHAIN [--time-budget 2h] [--overwrite] [--set key=value ...] [--out DIR]
+        The whole chain init -> stage1 -> stage2 -> finetune in one time budget; resumable.
     capture --out SESSION_DIR [--scene S] [--resume] (--simulate MATERIAL | --camera-folder DIR ...)
         The adaptive acquisition at the bench, every frame on disk as it arrives (docs/capture.md).
     calibrate {response,display,color,geometry,intrinsics} --scene S --out S2 ...
@@ -274,13 +276,34 @@ def cmd_patterns_pca(args: argparse.Namespace) -> int:
     return 0
 
 
+def cmd_train_chain(args: argparse.Namespace) -> int:
+    from .training import TrainingInterrupted
+    from .training.chain import load_chain, run_chain
+
+    chain = load_chain(args.chain, time_budget=args.time_budget, out=args.out)
+    check_out_dir("--out" if args.out else f"{args.chain}: out", chain.out)
+    try:
+        record = run_chain(chain, progress=not args.quiet, overwrite=args.overwrite, extra=list(args.set or []))
+    except TrainingInterrupted as e:
+        print(f"\nmitsvbrdf: {e}; run the same command again to continue the chain", file=sys.stderr)
+        return 128 + e.signal
+    for s in record["stages"]:
+        print(f"{s['stage']}: {s['steps']} steps in {s['elapsed_s']:.0f} s (budget {s['budget_s']:.0f} s)")
+    print(f"networks: {chain.out / 'networks.pt'}; record: {chain.out / 'chain.json'}")
+    return 0
+
+
 def cmd_train(args: argparse.Namespace) -> int:
     from .training import TrainingInterrupted, load_config, train
     from .training.trainer import RUN_FILES
 
+    from .training.config import parse_duration
+
     overrides = list(args.set or [])
     if args.out:
         overrides.append(f'out="{args.out}"')
+    if args.time_budget:
+        overrides.append(f"train.time_budget={parse_duration(args.time_budget)}")
     cfg = load_config(args.config, overrides)
     check_out_dir("--out" if args.out else f"{args.config}: out", cfg.out)
 
@@ -355,8 +378,21 @@ def build_parser() -> argparse.ArgumentParser:
                    "checkpoint, networks, metrics and plot are removed)")
     t.add_argument("--set", action="append", metavar="KEY=VALUE", help="override a config key, e.g. train.steps=10")
     t.add_argument("--out", default="", help="output folder (overrides the config's out)")
+    t.add_argument("--time-budget", default="", metavar="DURATION", help="end the run after this much training "
+                   "time (e.g. 2h, 90m), the learning-rate schedule fitted to it (train.time_budget)")
     t.add_argument("--quiet", action="store_true", help="no progress bar")
     t.set_defaults(func=cmd_train)
+    tc = sub.add_parser("train-chain", help="train init -> stage1 -> stage2 -> finetune in one time budget "
+                        "(a chain file, e.g. train/chain-small.toml; resumable)")
+    tc.add_argument("chain", help="chain file listing the stage configs and their shares of the budget")
+    tc.add_argument("--time-budget", default=None, metavar="DURATION", help="total training time (e.g. 2h), "
+                    "instead of the file's time_budget")
+    tc.add_argument("--out", default=None, help="output folder (instead of the file's out)")
+    tc.add_argument("--overwrite", action="store_true", help="start again (removes OUT); without it a chain "
+                    "continues where it stopped")
+    tc.add_argument("--set", action="append", metavar="KEY=VALUE", help="override a key in every stage")
+    tc.add_argument("--quiet", action="store_true", help="no progress bars")
+    tc.set_defaults(func=cmd_train_chain)
     d = sub.add_parser("demo", help="the whole method on the bundled material with the shipped networks")
     d.add_argument("--out", default="out/demo", help="output folder (default out/demo)")
     d.add_argument("--material", default="", help="material to acquire (default: the bundled example)")

@@ -383,7 +383,7 @@ def build_parser() -> argparse.ArgumentParser:
     t.add_argument("--quiet", action="store_true", help="no progress bar")
     t.set_defaults(func=cmd_train)
     tc = sub.add_parser("train-chain", help="train init -> stage1 -> stage2 -> finetune in one time budget "
-                        "(a chain file, e.g. train/chain-small.toml; resumable)")
+                        "(a chain file, e.g. train/chains/small.toml; resumable)")
     tc.add_argument("chain", help="chain file listing the stage configs and their shares of the budget")
     tc.add_argument("--time-budget", default=None, metavar="DURATION", help="total training time (e.g. 2h), "
                     "instead of the file's time_budget")

@@ -7,7 +7,8 @@
 
 Mitsuba plugin classes derive from variant-specific base classes, so they are defined and
 registered after a variant is chosen: call :func:`register` (``mitsvbrdf.backend`` picks and sets
-the variant safely), or import this package after ``mi.set_variant`` and it registers itself.
+the variant safely), or import this package after ``mi.set_variant`` to llvm_ad_rgb or
+cuda_ad_rgb and it registers itself.
 """
 
 from __future__ import annotations
@@ -43,8 +44,11 @@ def register(variant: str | None = None):
 
 
 def _register_if_variant_set() -> None:
+    from mitsvbrdf.backend import VARIANTS
+
+    # Only for a variant the plugins run on: code may have set another (e.g. scalar_rgb) for its own use.
     mi = sys.modules.get("mitsuba")
-    if mi is not None and mi.variant() is not None:
+    if mi is not None and mi.variant() in VARIANTS:
         register(mi.variant())
 
 

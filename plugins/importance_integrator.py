@@ -62,6 +62,7 @@ from __future__ import annotations
 import drjit as dr
 import mitsuba as mi
 
+from . import plugin_class
 from .lcd_integrals import ViewFrame, ltc_density
 
 SAMPLERS = ("independent", "stratified")
@@ -138,6 +139,12 @@ class _StratifiedSampler:
 def _power_heuristic(a, b):
     a2, b2 = a * a, b * b
     return dr.select(a2 + b2 > 0, a2 / (a2 + b2), 0.0)
+
+
+def _kinds(objects) -> str:
+    """The plugin classes of Mitsuba objects, for error messages ("AreaLight, LCDEmitter")."""
+    names = sorted(o.class_name() if type(o).__module__ == "mitsuba" else type(o).__name__ for o in objects)
+    return ", ".join(names) or "none"
 
 
 class _ControlVariate:
@@ -302,10 +309,16 @@ class ImportanceIntegrator(mi.SamplingIntegrator):
 
     @staticmethod
     def lcd(scene):
-        """The scene's ``lcd`` emitter (the Python object, with ``radiance_all``)."""
-        ems = [e for e in scene.emitters() if hasattr(e, "radiance_all")]
+        """The scene's one ``lcd`` emitter (an instance of the registered LCDEmitter class).
+
+        Raises:
+            ValueError: the scene has no ``lcd`` emitter or more than one.
+        """
+        lcd_class = plugin_class("lcd")
+        ems = [e for e in scene.emitters() if isinstance(e, lcd_class)]
         if len(ems) != 1:
-            raise ValueError(f"importance integrator: the scene needs exactly one 'lcd' emitter, found {len(ems)}")
+            raise ValueError(f"importance integrator: the scene needs exactly one emitter of type 'lcd', "
+                             f"found {len(ems)} among its emitters ({_kinds(scene.emitters())})")
         return ems[0]
 
     def direct(self, scene, sampler, si, active, first=0, count=None, cv=None, light=None) -> list:
@@ -366,9 +379,17 @@ class ImportanceIntegrator(mi.SamplingIntegrator):
 
     @staticmethod
     def _sample_shape(scene):
-        shapes = [s for s in scene.shapes() if s.bsdf() is not None and hasattr(s.bsdf(), "MAPS")]
+        """The scene's one shape whose BSDF is ``svbrdf_ggx`` (the material sample).
+
+        Raises:
+            ValueError: no such shape, or more than one.
+        """
+        bsdf_class = plugin_class("svbrdf_ggx")
+        shapes = [s for s in scene.shapes() if isinstance(s.bsdf(), bsdf_class)]
         if len(shapes) != 1:
-            raise ValueError("importance integrator: the scene needs exactly one shape with an svbrdf_ggx BSDF")
+            bsdfs = [s.bsdf() for s in scene.shapes() if s.bsdf() is not None]
+            raise ValueError(f"importance integrator: the scene needs exactly one shape with a BSDF of type "
+                             f"'svbrdf_ggx', found {len(shapes)} among its shapes' BSDFs ({_kinds(bsdfs)})")
         return shapes[0]
 
     @staticmethod

@@ -136,9 +136,12 @@ class _StratifiedSampler:
                           _unit_float(_owen(_sobol2(k), self.rng.next_uint32())))
 
 
-def _power_heuristic(a, b):
-    a2, b2 = a * a, b * b
-    return dr.select(a2 + b2 > 0, a2 / (a2 + b2), 0.0)
+def mis_weight(pdf_a, pdf_b):
+    """Power-heuristic weight of strategy a, detached, and 0 where it is not finite (as in
+    Mitsuba's own ``mis_weight``): both pdfs 0 or either infinite must not poison a lane with NaN."""
+    a2, b2 = dr.square(pdf_a), dr.square(pdf_b)
+    w = a2 / (a2 + b2)
+    return dr.detach(dr.select(dr.isfinite(w), w, 0.0))
 
 
 def _kinds(objects) -> str:
@@ -338,7 +341,7 @@ class ImportanceIntegrator(mi.SamplingIntegrator):
         em_ok = active & (ds.pdf > 0)
         wo = si.to_local(ds.d)
         f, bsdf_pdf = bsdf.eval_pdf(ctx, si, wo, em_ok)
-        w_em = dr.detach(_power_heuristic(ds.pdf, bsdf_pdf))
+        w_em = mis_weight(ds.pdf, bsdf_pdf)
         cos_emit = -dr.dot(ds.d, ds.n)
         scale = w_em / dr.maximum(dr.detach(ds.pdf), 1e-30)
         g = cv.pointwise(si, wo, ds.uv, em_ok) if cv is not None else None
@@ -355,9 +358,7 @@ class ImportanceIntegrator(mi.SamplingIntegrator):
         f_b = bsdf.eval(ctx, si, dr.detach(bs.wo), hit)
         ds_l = mi.DirectionSample3f(scene, si_l, si)
         em_pdf = light.pdf_direction(si, ds_l, hit)
-        # isfinite guard as in Mitsuba's own integrators: a degenerate pdf must not poison a lane.
-        w_bs = dr.detach(_power_heuristic(bs.pdf, em_pdf))
-        w_bs = dr.select(dr.isfinite(w_bs), w_bs, 0.0)
+        w_bs = mis_weight(bs.pdf, em_pdf)
         scale_b = w_bs / dr.maximum(dr.detach(bs.pdf), 1e-30)
         cos_l = mi.Frame3f.cos_theta(si_l.wi)
         g = cv.pointwise(si, dr.detach(bs.wo), si_l.uv, hit) if cv is not None else None

@@ -78,6 +78,22 @@ def test_bsdf_sampling_passes_the_chi_square_test(mi, roughness, theta_deg, res,
     assert chi2.run(), chi2.messages
 
 
+# ---- the integrator's MIS weight ---------------------------------------------------------------
+
+def test_mis_weight_is_the_power_heuristic(mi):
+    from mitsvbrdf_plugins.importance_integrator import mis_weight
+    w = np.array(mis_weight(mi.Float([1.0, 3.0, 0.0]), mi.Float([2.0, 1.0, 5.0])))
+    np.testing.assert_allclose(w, [1 / 5, 9 / 10, 0.0], rtol=1e-6)
+
+
+def test_mis_weight_is_zero_where_the_power_heuristic_is_not_finite(mi):
+    """Both pdfs 0 (0/0) or an infinite one (inf/inf) must give 0, not NaN, as Mitsuba's mis_weight."""
+    from mitsvbrdf_plugins.importance_integrator import mis_weight
+    inf = float("inf")
+    w = np.array(mis_weight(mi.Float([0.0, inf, inf]), mi.Float([0.0, 1.0, inf])))
+    assert w.tolist() == [0.0, 0.0, 0.0]
+
+
 # Agreement with the reference, one pass for all patterns and materials, kernel reuse, gradients
 # and the extremes grid are specified for every estimator of the integrator (the default
 # included) in tests/test_integrator_options.py.

@@ -18,6 +18,8 @@ from __future__ import annotations
 import importlib
 import sys
 
+from mitsvbrdf.backend import VARIANTS, import_mitsuba
+
 _MODULES = {"lcd": ("lcd_emitter", "LCDEmitter"), "svbrdf_ggx": ("svbrdf_bsdf", "SVBRDFGGX"),
             "importance": ("importance_integrator", "ImportanceIntegrator")}
 """Plugin name -> (module, class), in the order the modules load (the integrator imports the others)."""
@@ -44,8 +46,6 @@ def register(variant: str | None = None):
         variant: a variant :func:`mitsvbrdf.backend.choose_variant` accepts; None chooses one.
     Returns the ``mitsuba`` module. Idempotent per variant.
     """
-    from mitsvbrdf.backend import import_mitsuba
-
     mi = import_mitsuba(variant)
     v = mi.variant()
     if v not in _CLASSES:
@@ -79,8 +79,6 @@ def plugin_class(name: str, variant: str | None = None) -> type:
 
 
 def _register_if_variant_set() -> None:
-    from mitsvbrdf.backend import VARIANTS
-
     # Only for a variant the plugins run on: code may have set another (e.g. scalar_rgb) for its own use.
     mi = sys.modules.get("mitsuba")
     if mi is not None and mi.variant() in VARIANTS:

@@ -62,6 +62,7 @@ from __future__ import annotations
 import drjit as dr
 import mitsuba as mi
 
+from . import plugin_class
 from .lcd_integrals import ViewFrame, ltc_density
 
 SAMPLERS = ("independent", "stratified")
@@ -135,9 +136,18 @@ class _StratifiedSampler:
                           _unit_float(_owen(_sobol2(k), self.rng.next_uint32())))
 
 
-def _power_heuristic(a, b):
-    a2, b2 = a * a, b * b
-    return dr.select(a2 + b2 > 0, a2 / (a2 + b2), 0.0)
+def mis_weight(pdf_a, pdf_b):
+    """Power-heuristic weight of strategy a, detached, and 0 where it is not finite (as in
+    Mitsuba's own ``mis_weight``): both pdfs 0 or either infinite must not poison a lane with NaN."""
+    a2, b2 = dr.square(pdf_a), dr.square(pdf_b)
+    w = a2 / (a2 + b2)
+    return dr.detach(dr.select(dr.isfinite(w), w, 0.0))
+
+
+def _kinds(objects) -> str:
+    """The plugin classes of Mitsuba objects, for error messages ("AreaLight, LCDEmitter")."""
+    names = sorted(o.class_name() if type(o).__module__ == "mitsuba" else type(o).__name__ for o in objects)
+    return ", ".join(names) or "none"
 
 
 class _ControlVariate:
@@ -302,10 +312,16 @@ class ImportanceIntegrator(mi.SamplingIntegrator):
 
     @staticmethod
     def lcd(scene):
-        """The scene's ``lcd`` emitter (the Python object, with ``radiance_all``)."""
-        ems = [e for e in scene.emitters() if hasattr(e, "radiance_all")]
+        """The scene's one ``lcd`` emitter (an instance of the registered LCDEmitter class).
+
+        Raises:
+            ValueError: the scene has no ``lcd`` emitter or more than one.
+        """
+        lcd_class = plugin_class("lcd")
+        ems = [e for e in scene.emitters() if isinstance(e, lcd_class)]
         if len(ems) != 1:
-            raise ValueError(f"importance integrator: the scene needs exactly one 'lcd' emitter, found {len(ems)}")
+            raise ValueError(f"importance integrator: the scene needs exactly one emitter of type 'lcd', "
+                             f"found {len(ems)} among its emitters ({_kinds(scene.emitters())})")
         return ems[0]
 
     def direct(self, scene, sampler, si, active, first=0, count=None, cv=None, light=None) -> list:
@@ -325,7 +341,7 @@ class ImportanceIntegrator(mi.SamplingIntegrator):
         em_ok = active & (ds.pdf > 0)
         wo = si.to_local(ds.d)
         f, bsdf_pdf = bsdf.eval_pdf(ctx, si, wo, em_ok)
-        w_em = dr.detach(_power_heuristic(ds.pdf, bsdf_pdf))
+        w_em = mis_weight(ds.pdf, bsdf_pdf)
         cos_emit = -dr.dot(ds.d, ds.n)
         scale = w_em / dr.maximum(dr.detach(ds.pdf), 1e-30)
         g = cv.pointwise(si, wo, ds.uv, em_ok) if cv is not None else None
@@ -342,9 +358,7 @@ class ImportanceIntegrator(mi.SamplingIntegrator):
         f_b = bsdf.eval(ctx, si, dr.detach(bs.wo), hit)
         ds_l = mi.DirectionSample3f(scene, si_l, si)
         em_pdf = light.pdf_direction(si, ds_l, hit)
-        # isfinite guard as in Mitsuba's own integrators: a degenerate pdf must not poison a lane.
-        w_bs = dr.detach(_power_heuristic(bs.pdf, em_pdf))
-        w_bs = dr.select(dr.isfinite(w_bs), w_bs, 0.0)
+        w_bs = mis_weight(bs.pdf, em_pdf)
         scale_b = w_bs / dr.maximum(dr.detach(bs.pdf), 1e-30)
         cos_l = mi.Frame3f.cos_theta(si_l.wi)
         g = cv.pointwise(si, dr.detach(bs.wo), si_l.uv, hit) if cv is not None else None
@@ -366,9 +380,17 @@ class ImportanceIntegrator(mi.SamplingIntegrator):
 
     @staticmethod
     def _sample_shape(scene):
-        shapes = [s for s in scene.shapes() if s.bsdf() is not None and hasattr(s.bsdf(), "MAPS")]
+        """The scene's one shape whose BSDF is ``svbrdf_ggx`` (the material sample).
+
+        Raises:
+            ValueError: no such shape, or more than one.
+        """
+        bsdf_class = plugin_class("svbrdf_ggx")
+        shapes = [s for s in scene.shapes() if isinstance(s.bsdf(), bsdf_class)]
         if len(shapes) != 1:
-            raise ValueError("importance integrator: the scene needs exactly one shape with an svbrdf_ggx BSDF")
+            bsdfs = [s.bsdf() for s in scene.shapes() if s.bsdf() is not None]
+            raise ValueError(f"importance integrator: the scene needs exactly one shape with a BSDF of type "
+                             f"'svbrdf_ggx', found {len(shapes)} among its shapes' BSDFs ({_kinds(bsdfs)})")
         return shapes[0]
 
     @staticmethod

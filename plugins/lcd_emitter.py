@@ -20,6 +20,8 @@ gradients. ``traverse`` exposes ``data`` as differentiable.
 
 from __future__ import annotations
 
+import math
+
 import drjit as dr
 import mitsuba as mi
 
@@ -54,7 +56,6 @@ class LCDEmitter(mi.Emitter):
         self.cos_power = float(props["decay_cos_power"]) if "decay_cos_power" in props else None
         self.gradient = _floats(props["decay_gradient"], 3, "decay_gradient")[:2] if "decay_gradient" in props else None
         # The display model's contract (mitsvbrdf.rig.DisplayModel), for scenes loaded without the Rig.
-        import math
         if not all(math.isfinite(v) and v > 0 for v in self.intensity):
             raise ValueError(f"lcd: 'intensity' must be finite and > 0 per channel, got {list(self.intensity)}")
         if self.gamma is not None and not (math.isfinite(self.gamma) and self.gamma > 0):

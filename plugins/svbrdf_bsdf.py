@@ -24,12 +24,12 @@ the mixture pdf.
 
 from __future__ import annotations
 
-import math
-
 import drjit as dr
 import mitsuba as mi
+import numpy as np
 
 from mitsvbrdf.brdf import ALPHA_MIN
+from mitsvbrdf.imageio import read_image
 
 
 def _as_map(props, name: str, channels: int, default) -> mi.TensorXf:
@@ -51,10 +51,6 @@ def _as_map(props, name: str, channels: int, default) -> mi.TensorXf:
 
 
 def _read_map(filename: str, name: str, channels: int) -> mi.TensorXf:
-    import numpy as np
-
-    from mitsvbrdf.imageio import read_image
-
     path = mi.file_resolver().resolve(filename)
     a = read_image(str(path))
     if a.shape[2] != channels:

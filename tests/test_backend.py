@@ -1,8 +1,8 @@
 """Backend selection: never hand Dr.Jit an old libLLVM, pick CUDA only when usable.
 
-Parsing and selection are tested on fake file names and fake ``ldconfig -p`` text. Everything that
-loads a real libLLVM or imports drjit runs in a subprocess, so a library that aborts the process
-(LLVM 15 does, inside Dr.Jit kernels) can never take pytest down with it.
+Discovery is tested on empty files in fake folders (versions come from their names). Everything
+that loads a real libLLVM or imports drjit runs in a subprocess, so a library that aborts the
+process (LLVM 15 does, inside Dr.Jit kernels) can never take pytest down with it.
 """
 
 from __future__ import annotations
@@ -18,115 +18,80 @@ import pytest
 from mitsvbrdf import backend as b
 from mitsvbrdf.errors import BackendError
 
-LIBDIR = "/usr/lib/x86_64-linux-gnu"
-OLD_LLVM = f"{LIBDIR}/libLLVM-15.so.1"
-
-LDCONFIG = """\t7 libs found in cache `/etc/ld.so.cache'
-\tlibLLVMSPIRVLib.so.15 (libc6,x86-64) => /lib/x86_64-linux-gnu/libLLVMSPIRVLib.so.15
-\tlibLLVM.so.19.1 (libc6,x86-64) => /lib/x86_64-linux-gnu/libLLVM.so.19.1
-\tlibLLVM-15.so.1 (libc6,x86-64) => /lib/x86_64-linux-gnu/libLLVM-15.so.1
-\tlibLLVM-15.so (libc6,x86-64) => /lib/x86_64-linux-gnu/libLLVM-15.so
-\tlibLLVM-14.so.1 (libc6,x86-64) => /lib/x86_64-linux-gnu/libLLVM-14.so.1
-\tlibLLVM-18.so.1 (libc6) => /lib/i386-linux-gnu/libLLVM-18.so.1
-\tlibc.so.6 (libc6,x86-64) => /lib/x86_64-linux-gnu/libc.so.6
-"""
+OLD_LLVM = f"/usr/lib/{os.uname().machine}-linux-gnu/libLLVM-15.so.1"
 
 
-# --------------------------------------------------------------------------- pure parsing
+# --------------------------------------------------------------------------- file names
 
 
 @pytest.mark.parametrize("name,major", [
     ("libLLVM-17.so.1", 17), ("libLLVM.so.19.1", 19), ("libLLVM-15.so", 15),
-    ("/usr/lib/llvm-18/lib/libLLVM-18.so", 18), ("libLLVM-14.0.6.so.1", 14), ("libLLVM-19.dylib", 19),
-    ("libLLVM.so", None), ("libLLVM.dylib", None), ("libLLVMSupport.a", None), ("libc.so.6", None),
+    ("/usr/lib/llvm-18/lib/libLLVM-18.so", 18), ("libLLVM-14.0.6.so.1", 14),
+    ("libLLVM.so", None), ("libLLVMSPIRVLib.so.15", None), ("libLLVM-C.so", None),
+    ("libLLVMSupport.a", None), ("libc.so.6", None),
 ])
 def test_version_is_read_from_the_file_name(name, major):
     assert b.parse_llvm_major(name) == major
-
-
-@pytest.mark.parametrize("name,ok", [
-    ("libLLVM-19.so", True), ("libLLVM.so.19.1", True), ("libLLVM.so", True), ("libLLVM.dylib", True),
-    ("libLLVM-14.0.6.so.1", True), ("libLLVMSPIRVLib.so.15", False), ("libLLVM-C.so", False),
-    ("libLLVMSupport.a", False), ("LLVMgold.so", False),
-])
-def test_only_whole_libllvm_libraries_are_candidates(name, ok):
-    assert b.is_libllvm_name(name) is ok
-
-
-def test_ldconfig_text_is_parsed_in_order_skipping_components_and_other_architectures():
-    assert b.parse_ldconfig(LDCONFIG, "x86_64") == [
-        "/lib/x86_64-linux-gnu/libLLVM.so.19.1", "/lib/x86_64-linux-gnu/libLLVM-15.so.1",
-        "/lib/x86_64-linux-gnu/libLLVM-15.so", "/lib/x86_64-linux-gnu/libLLVM-14.so.1"]
-    assert "/lib/i386-linux-gnu/libLLVM-18.so.1" in b.parse_ldconfig(LDCONFIG, None)
-    assert b.parse_ldconfig("", "x86_64") == []
-
-
-def test_newest_library_of_at_least_16_is_chosen():
-    libs = [b.LibLLVM(p, b.parse_llvm_major(p)) for p in b.parse_ldconfig(LDCONFIG, "x86_64")]
-    assert sorted(lib.major for lib in libs) == [14, 15, 15, 19]
-    assert b.pick_newest(libs) == b.LibLLVM("/lib/x86_64-linux-gnu/libLLVM.so.19.1", 19)
-    assert b.pick_newest(libs, min_major=20) is None
-
-
-def test_only_old_libraries_give_none():
-    only_old = LDCONFIG.replace("libLLVM.so.19.1", "libLLVM-14.0.6.so.1")
-    libs = [b.LibLLVM(p, b.parse_llvm_major(p)) for p in b.parse_ldconfig(only_old, "x86_64")]
-    assert libs and b.pick_newest(libs) is None
 
 
 # --------------------------------------------------------------------------- discovery on fake files
 
 
 @pytest.fixture
-def fake_system(monkeypatch, tmp_path):
-    """A fake library folder: ldconfig lists what `ldconfig` names; SEARCH_DIRS is `tmp/search`."""
+def folders(monkeypatch, tmp_path):
+    """Two fake library folders searched in order; returns a function that creates empty files."""
     monkeypatch.delenv(b.ENV_LLVM, raising=False)
-    libdir, search = tmp_path / "lib", tmp_path / "search"
-    libdir.mkdir()
-    search.mkdir()
-    monkeypatch.setattr(b, "SEARCH_DIRS", (str(search),))
-    monkeypatch.setattr(b.platform, "machine", lambda: "x86_64")
+    first, second = tmp_path / "first", tmp_path / "second"
+    first.mkdir()
+    second.mkdir()
+    monkeypatch.setattr(b, "SEARCH_DIRS", (str(first), str(second)))
 
-    def install(ldconfig: list[str] = (), searched: list[str] = ()) -> None:
-        lines = []
-        for name in ldconfig:
-            (libdir / name).write_bytes(b"")  # never loaded: versions come from the names
-            lines.append(f"\t{name} (libc6,x86-64) => {libdir / name}")
-        for name in searched:
-            (search / name).write_bytes(b"")
-        monkeypatch.setattr(b, "_ldconfig_output", lambda: "\n".join(lines))
+    def install(*names: str, folder: Path = first) -> None:
+        for name in names:
+            (folder / name).write_bytes(b"")  # never loaded: versions come from the names
 
+    install.first, install.second = first, second
     return install
 
 
-def test_find_picks_19_among_14_15_19(fake_system):
-    fake_system(ldconfig=["libLLVM-14.so.1", "libLLVM-15.so.1", "libLLVM.so.19.1"])
-    lib = b.find_libllvm()
-    assert lib is not None and lib.major == 19 and lib.path.endswith("libLLVM.so.19.1")
-    assert lib.source == "ldconfig"
+def test_find_picks_the_newest_of_at_least_16(folders):
+    folders("libLLVM-14.so.1", "libLLVM-17.so.1")
+    folders("libLLVM-15.so.1", "libLLVM.so.19.1", folder=folders.second)
+    assert b.find_libllvm() == b.LibLLVM(str(folders.second / "libLLVM.so.19.1"), 19)
 
 
-def test_find_gives_none_with_only_14_and_15(fake_system):
-    # The unversioned libLLVM.so is asked for its version in a subprocess; it cannot be loaded.
-    fake_system(ldconfig=["libLLVM-14.so.1", "libLLVM-15.so.1"], searched=["libLLVM.so"])
+def test_find_gives_none_with_only_old_or_unloadable_libraries(folders):
+    folders("libLLVM-14.so.1", "libLLVM-15.so.1", "libLLVM.so")  # libLLVM.so: asked, cannot load
     assert b.find_libllvm() is None
 
 
-def test_find_searches_folders_and_follows_unversioned_links(fake_system, tmp_path):
-    fake_system(ldconfig=["libLLVM-15.so.1"], searched=["libLLVM-17.so.1"])
-    other = tmp_path / "elsewhere"
-    other.mkdir()
-    (other / "libLLVM-21.so.1").write_bytes(b"")
-    (tmp_path / "search" / "libLLVM.so").symlink_to(other / "libLLVM-21.so.1")
-    lib = b.find_libllvm()
-    assert lib is not None and lib.major == 21 and lib.source == "search"
+def test_find_follows_an_unversioned_link_to_its_versioned_name(folders, tmp_path):
+    (tmp_path / "libLLVM-21.so.1").write_bytes(b"")
+    (folders.first / "libLLVM.so").symlink_to(tmp_path / "libLLVM-21.so.1")
+    assert b.find_libllvm() == b.LibLLVM(str(folders.first / "libLLVM.so"), 21)
+
+
+def test_find_expands_wildcards_in_folders(monkeypatch, tmp_path):
+    monkeypatch.delenv(b.ENV_LLVM, raising=False)
+    (tmp_path / "llvm-18" / "lib").mkdir(parents=True)
+    (tmp_path / "llvm-18" / "lib" / "libLLVM-18.so").write_bytes(b"")
+    monkeypatch.setattr(b, "SEARCH_DIRS", (str(tmp_path / "llvm-*" / "lib"),))
+    assert b.find_libllvm().major == 18
+
+
+def test_find_never_loads_llvm_component_libraries(folders, monkeypatch):
+    probed = []
+    monkeypatch.setattr(b, "_probe", lambda path: probed.append(os.path.basename(path)) or (None, "fake"))
+    folders("libLLVMSPIRVLib.so.15", "libLLVM-C.so", "libLLVM.so")
+    b.find_libllvm()
+    assert probed == ["libLLVM.so"]
 
 
 def test_a_library_that_cannot_be_loaded_is_reported_not_crashing(tmp_path):
     junk = tmp_path / "libLLVM.so"
     junk.write_bytes(b"not an ELF file")
-    major, detail = b.probe_library(str(junk))
-    assert major is None and "cannot be loaded" in detail
+    major, why = b.library_version(str(junk))
+    assert major is None and "cannot be loaded" in why
 
 
 # --------------------------------------------------------------------------- DRJIT_LIBLLVM_PATH
@@ -155,8 +120,8 @@ def test_env_var_to_an_unloadable_unversioned_file_is_a_clear_error(monkeypatch,
         b.find_libllvm()
 
 
-def test_env_var_wins_over_newer_libraries(monkeypatch, tmp_path, fake_system):
-    fake_system(ldconfig=["libLLVM-20.so.1"])
+def test_env_var_wins_over_newer_libraries(monkeypatch, tmp_path, folders):
+    folders("libLLVM-20.so.1")
     mine = tmp_path / "libLLVM-17.so"
     mine.write_bytes(b"")
     monkeypatch.setenv(b.ENV_LLVM, str(mine))
@@ -176,13 +141,13 @@ def no_drjit(monkeypatch):
 
 def test_configure_sets_the_env_var(monkeypatch, no_drjit):
     lib = b.LibLLVM("/opt/llvm/libLLVM-19.so", 19)
-    monkeypatch.setattr(b, "find_libllvm", lambda min_major=b.MIN_LLVM: lib)
+    monkeypatch.setattr(b, "find_libllvm", lambda: lib)
     assert b.configure_llvm() == lib
     assert os.environ[b.ENV_LLVM] == lib.path
 
 
 def test_configure_without_a_library_says_how_to_fix_it(monkeypatch, no_drjit):
-    monkeypatch.setattr(b, "find_libllvm", lambda min_major=b.MIN_LLVM: None)
+    monkeypatch.setattr(b, "find_libllvm", lambda: None)
     with pytest.raises(BackendError, match=r"no libLLVM >= 16 .*apt-get install libllvm19"):
         b.configure_llvm()
     assert b.ENV_LLVM not in os.environ
@@ -195,49 +160,49 @@ def _fake_drjit(monkeypatch, version):
 
 def test_configure_after_drjit_loaded_an_old_library_refuses(monkeypatch):
     _fake_drjit(monkeypatch, (15, 0, 6))
-    with pytest.raises(BackendError, match="before importing drjit/mitsuba"):
+    with pytest.raises(BackendError, match="loaded libLLVM 15.*before importing drjit/mitsuba"):
         b.configure_llvm()
 
 
 def test_configure_after_drjit_loaded_a_good_library_accepts_it(monkeypatch):
     _fake_drjit(monkeypatch, (19, 1, 7))
-    lib = b.configure_llvm()
-    assert lib.major == 19 and lib.source == "drjit"
+    assert b.configure_llvm().major == 19
 
 
 # --------------------------------------------------------------------------- variants
 
 
-def test_variant_choice_honours_argument_and_environment(monkeypatch):
+@pytest.fixture
+def no_variant_env(monkeypatch):
     monkeypatch.delenv(b.ENV_VARIANT, raising=False)
-    assert b.choose_variant("scalar_rgb") == "scalar_rgb"
-    monkeypatch.setenv(b.ENV_VARIANT, "cuda_rgb")
-    assert b.choose_variant() == "cuda_rgb"
-    assert b.choose_variant("llvm_rgb") == "llvm_rgb"  # the argument beats the environment
-    monkeypatch.delenv(b.ENV_VARIANT)
-    assert b.choose_variant() == ("cuda_ad_rgb" if b.cuda_available() else "llvm_ad_rgb")
-    monkeypatch.setattr(b, "cuda_available", lambda: True)
+
+
+def test_variant_argument_is_used(no_variant_env):
+    assert b.choose_variant("cuda_ad_rgb") == "cuda_ad_rgb"
+
+
+def test_variant_environment_is_used_without_an_argument(monkeypatch):
+    monkeypatch.setenv(b.ENV_VARIANT, "cuda_ad_rgb")
     assert b.choose_variant() == "cuda_ad_rgb"
-    monkeypatch.setattr(b, "cuda_available", lambda: False)
-    assert b.choose_variant() == "llvm_ad_rgb"
 
 
-def test_unknown_variants_are_rejected(monkeypatch):
-    with pytest.raises(BackendError, match="unknown Mitsuba variant 'cuda_spectral_magic'"):
-        b.choose_variant("cuda_spectral_magic")
+def test_variant_argument_beats_the_environment(monkeypatch):
+    monkeypatch.setenv(b.ENV_VARIANT, "cuda_ad_rgb")
+    assert b.choose_variant("llvm_ad_rgb") == "llvm_ad_rgb"
+
+
+@pytest.mark.parametrize("cuda,variant", [(True, "cuda_ad_rgb"), (False, "llvm_ad_rgb")])
+def test_variant_default_follows_cuda(monkeypatch, no_variant_env, cuda, variant):
+    monkeypatch.setattr(b.torch.cuda, "is_available", lambda: cuda)
+    assert b.choose_variant() == variant
+
+
+def test_variants_other_than_the_two_differentiable_ones_are_rejected(monkeypatch, no_variant_env):
+    with pytest.raises(BackendError, match="unknown Mitsuba variant 'scalar_rgb'"):
+        b.choose_variant("scalar_rgb")
     monkeypatch.setenv(b.ENV_VARIANT, "llvm")
     with pytest.raises(BackendError, match="MITSVBRDF_VARIANT"):
         b.choose_variant()
-
-
-def test_torch_device_follows_the_variant():
-    assert b.torch_device_for("cuda_ad_rgb").type == "cuda"
-    assert b.torch_device_for("llvm_ad_rgb").type == "cpu"
-    assert b.torch_device_for("scalar_rgb").type == "cpu"
-
-
-def test_cuda_available_never_raises():
-    assert isinstance(b.cuda_available(), bool)
 
 
 # --------------------------------------------------------------------------- subprocesses
@@ -250,15 +215,15 @@ def _run(args: list[str], **env: str) -> subprocess.CompletedProcess:
                           cwd=Path(__file__).resolve().parents[1])
 
 
-def test_command_line_report_and_check(monkeypatch):
-    monkeypatch.delenv(b.ENV_LLVM, raising=False)  # as in the subprocesses
-    r = _run(["-m", "mitsvbrdf.backend"])
-    assert r.returncode == 0, r.stderr
-    assert "variant:" in r.stdout and "libLLVM:" in r.stdout and "CUDA:" in r.stdout
+def test_check_llvm_prints_the_library_found(monkeypatch):
+    monkeypatch.delenv(b.ENV_LLVM, raising=False)  # as in the subprocess
     r = _run(["-m", "mitsvbrdf.backend", "--check-llvm"])
     lib = b.find_libllvm()
     assert r.returncode == (1 if lib is None else 0)
     assert r.stdout.strip() == (lib.path if lib else "")
+
+
+def test_check_llvm_fails_on_a_bad_env_var():
     r = _run(["-m", "mitsvbrdf.backend", "--check-llvm"], DRJIT_LIBLLVM_PATH="/nonexistent/libLLVM.so")
     assert r.returncode == 1 and "not an existing file" in r.stderr
 

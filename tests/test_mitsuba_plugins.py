@@ -6,6 +6,8 @@ All on the CPU (llvm_ad_rgb) at 8-16 px; skipped when no libLLVM >= 16 is availa
 """
 
 import math
+import subprocess
+import sys
 from pathlib import Path
 
 import numpy as np
@@ -76,6 +78,22 @@ def test_bsdf_sampling_passes_the_chi_square_test(mi, roughness, theta_deg, res,
     assert chi2.run(), chi2.messages
 
 
+# ---- the integrator's MIS weight ---------------------------------------------------------------
+
+def test_mis_weight_is_the_power_heuristic(mi):
+    from mitsvbrdf_plugins.importance_integrator import mis_weight
+    w = np.array(mis_weight(mi.Float([1.0, 3.0, 0.0]), mi.Float([2.0, 1.0, 5.0])))
+    np.testing.assert_allclose(w, [1 / 5, 9 / 10, 0.0], rtol=1e-6)
+
+
+def test_mis_weight_is_zero_where_the_power_heuristic_is_not_finite(mi):
+    """Both pdfs 0 (0/0) or an infinite one (inf/inf) must give 0, not NaN, as Mitsuba's mis_weight."""
+    from mitsvbrdf_plugins.importance_integrator import mis_weight
+    inf = float("inf")
+    w = np.array(mis_weight(mi.Float([0.0, inf, inf]), mi.Float([0.0, 1.0, inf])))
+    assert w.tolist() == [0.0, 0.0, 0.0]
+
+
 # Agreement with the reference, one pass for all patterns and materials, kernel reuse, gradients
 # and the extremes grid are specified for every estimator of the integrator (the default
 # included) in tests/test_integrator_options.py.
@@ -112,6 +130,57 @@ def test_scene_with_an_unknown_parameter_is_a_clear_error(rig, tmp_path):
                                               '<float name="intensity" value="1.0"/><float name="intensty" value="2"/>'))
     with pytest.raises(SceneError, match="intensty"):
         ms.render(flat_material(4), pt.uniform(), ms.Rig.from_scene(path), method="mitsuba", spp=1)
+
+
+def _scene_with(mi, tmp_path, tag: str, plugin: str, replacement: str):
+    """The default rig's scene with its ``<tag type="plugin">`` element replaced, loaded."""
+    text = SCENE.read_text()
+    start = text.index(f'<{tag} type="{plugin}"')
+    end = text.index(f"</{tag}>", start) + len(f"</{tag}>")
+    path = tmp_path / "scene.xml"
+    path.write_text(text[:start] + replacement + text[end:])
+    return mi.load_file(str(path), resolution=4)
+
+
+def test_scene_without_an_lcd_emitter_is_a_clear_error(mi, tmp_path):
+    scene = _scene_with(mi, tmp_path, "emitter", "lcd", '<emitter type="area"><rgb name="radiance" value="1"/></emitter>')
+    with pytest.raises(ValueError, match=r"one emitter of type 'lcd', found 0 among its emitters \(AreaLight\)"):
+        scene.integrator().lcd(scene)
+
+
+def test_scene_without_an_svbrdf_ggx_bsdf_is_a_clear_error(mi, tmp_path):
+    scene = _scene_with(mi, tmp_path, "bsdf", "svbrdf_ggx", '<bsdf type="diffuse"/>')
+    with pytest.raises(ValueError, match=r"one shape with a BSDF of type 'svbrdf_ggx', found 0 .*SmoothDiffuse"):
+        scene.integrator().render_texels(scene, (4, 4), 1, 0)
+
+
+def test_scene_with_another_integrator_is_a_clear_error(tmp_path):
+    path = tmp_path / "direct.xml"
+    path.write_text(SCENE.read_text().replace('<integrator type="importance"/>', '<integrator type="direct"/>'))
+    with pytest.raises(SceneError, match='integrator must be type="importance"'):
+        ms.render(flat_material(4), pt.uniform(), ms.Rig.from_scene(path), method="mitsuba", spp=1)
+
+
+def test_plugin_class_of_an_unknown_name_is_a_clear_error(mi):
+    import mitsvbrdf_plugins
+    with pytest.raises(ValueError, match="unknown mitsvbrdf plugin 'area'.*lcd, svbrdf_ggx, importance"):
+        mitsvbrdf_plugins.plugin_class("area")
+
+
+def test_a_variant_keeps_its_plugin_classes_when_the_modules_are_reloaded_for_another():
+    """register() reloads the plugin modules for each new variant; scenes of a variant registered
+    before must still construct, and be recognised as, that variant's classes. In a subprocess:
+    the reload must not leak into the other tests."""
+    code = ("import mitsvbrdf as ms, mitsvbrdf_plugins as mp\n"
+            "from mitsvbrdf.patterns import uniform\n"
+            "mi = mp.register('llvm_ad_rgb')\n"
+            "mp._load_classes()  # what registering another variant does to the modules\n"
+            "m = ms.SVBRDF.constant(normal=(0, 0, 1), diffuse=0.5, roughness=0.5, specular=0.04, size=2)\n"
+            f"img = ms.render(m, uniform(), ms.Rig.from_scene({str(SCENE)!r}), method='mitsuba', spp=1)\n"
+            "print(tuple(img.shape), bool(img.isfinite().all()))")
+    r = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=600)
+    assert r.returncode == 0, r.stderr
+    assert r.stdout.strip().splitlines()[-1] == "(1, 1, 3, 2, 2) True"
 
 
 def test_mi_render_through_the_scene_camera_sees_the_lit_sample(mi, rig):

@@ -48,7 +48,7 @@ def load_scene(source: str, variant: str):
             from ..errors import SceneError
             raise SceneError(f"{source}: Mitsuba cannot load the scene ({e})") from e
         integrator = scene.integrator()
-        if not hasattr(integrator, "render_texels"):
+        if not isinstance(integrator, mitsvbrdf_plugins.plugin_class("importance", variant)):
             from ..errors import SceneError
             raise SceneError(f"{source}: the scene's integrator must be type=\"importance\" for method='mitsuba'")
         _SCENES[key] = (mi, scene, mi.traverse(scene), integrator)

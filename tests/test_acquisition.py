@@ -1,4 +1,5 @@
-"""The acquisition pipeline around injected networks (tiny stand-ins here; trained nets elsewhere)."""
+"""The acquisition layer: the steps around injected networks (tiny stand-ins here), and networks
+files that carry the settings they were trained with."""
 
 from types import SimpleNamespace
 
@@ -6,7 +7,11 @@ import pytest
 import torch
 
 import mitsvbrdf as ms
-from mitsvbrdf.pipeline import AcquisitionPipeline, maps_to_svbrdf
+from mitsvbrdf.acquisition import (SETTINGS_KEY, AcquisitionSettings, AdaptiveAcquisition, load_adaptive,
+                                   load_baseline, maps_to_svbrdf, predict)
+from mitsvbrdf.errors import MitsvbrdfError
+from mitsvbrdf.nets import NetworkFileError, network_record
+from mitsvbrdf.training import STAGES, RenderSettings
 
 from conftest import textured_material
 
@@ -32,8 +37,11 @@ class LpdfLighting(torch.nn.Module):
 
 
 class ImageReconstructor(torch.nn.Module):
+    """Diffuse albedo from the first image; records whether it was given I^spec."""
+
     def forward(self, images, spec):
         b, _, _, h, w = images.shape
+        self.saw_spec = spec is not None
         out = torch.full((b, 10, h, w), 0.5)
         out[:, 3:6] = (images[:, 0] / images[:, 0].amax((1, 2, 3), keepdim=True)).clamp(0, 1)
         return out
@@ -41,8 +49,8 @@ class ImageReconstructor(torch.nn.Module):
 
 @pytest.fixture()
 def pipeline(rig):
-    return AcquisitionPipeline(torch.full((3, 32, 32), 0.8), MeanInitializer(), LpdfLighting(),
-                               ImageReconstructor(), rig, lpdf_stride=4)
+    return AdaptiveAcquisition(torch.full((3, 32, 32), 0.8), MeanInitializer(), LpdfLighting(),
+                               ImageReconstructor(), rig, AcquisitionSettings(lpdf_stride=4))
 
 
 def test_simulated_acquisition_shows_l0_first_then_the_predicted_patterns(pipeline):
@@ -75,8 +83,8 @@ def test_mitsuba_simulation_is_reproducible_for_a_seed(pipeline):
 
 
 def test_uniform_lpdf_ablation_ignores_the_initializer(rig):
-    p = AcquisitionPipeline(torch.ones(3, 32, 32), MeanInitializer(), LpdfLighting(), ImageReconstructor(), rig,
-                            lpdf_from="uniform")
+    p = AdaptiveAcquisition(torch.ones(3, 32, 32), MeanInitializer(), LpdfLighting(), ImageReconstructor(), rig,
+                            AcquisitionSettings(lpdf_from="uniform"))
     acq = p.simulate(textured_material(8), method="reference")
     assert torch.equal(acq.lpdf, torch.ones(1, 32, 32))
 
@@ -90,4 +98,86 @@ def test_network_outputs_become_valid_materials():
 
 def test_first_pattern_must_fit_the_lcd(rig):
     with pytest.raises(ValueError, match=r"\(3, 32, 32\)"):
-        AcquisitionPipeline(torch.ones(3, 16, 16), MeanInitializer(), LpdfLighting(), ImageReconstructor(), rig)
+        AdaptiveAcquisition(torch.ones(3, 16, 16), MeanInitializer(), LpdfLighting(), ImageReconstructor(), rig)
+
+
+def test_without_use_spec_g_sc_gets_no_separation(rig):
+    rec = ImageReconstructor()
+    p = AdaptiveAcquisition(torch.ones(3, 32, 32), MeanInitializer(), LpdfLighting(), rec, rig,
+                            AcquisitionSettings(use_spec=False))
+    p.simulate(textured_material(8), method="reference")
+    assert rec.saw_spec is False
+
+
+def test_ground_truth_lpdf_needs_the_ground_truth(rig):
+    i0 = torch.rand(1, 3, 8, 8)
+    with pytest.raises(MitsvbrdfError, match="needs the ground-truth material"):
+        predict(MeanInitializer(), LpdfLighting(), i0, rig, AcquisitionSettings(lpdf_from="ground_truth"))
+
+
+@pytest.mark.parametrize("bad", [{"lpdf_from": "oracle"}, {"lpdf_stride": 0}, {"use_spec": "yes"}])
+def test_bad_settings_are_refused(bad):
+    with pytest.raises(MitsvbrdfError):
+        AcquisitionSettings(**bad)
+
+
+# ---- networks files carry their settings ---------------------------------------------------
+
+
+def _stage(rig, name="stage2", **model):
+    torch.manual_seed(0)
+    S = STAGES[name]
+    return S(S.Model(**model), S.Loss(), RenderSettings(), rig)
+
+
+def _save(path, stage, settings="from the stage"):
+    recs = {n: network_record(m) for n, m in stage.networks().items()}
+    if settings == "from the stage":
+        settings = stage.acquisition_settings().record()
+    if settings is not None:
+        recs[SETTINGS_KEY] = settings
+    torch.save(recs, path)
+    return path
+
+
+def test_an_export_is_acquired_with_the_settings_it_was_trained_with(rig, tmp_path):
+    stage = _stage(rig, lighting_width=4, svbrdf_width=4, lpdf_from="uniform", lpdf_stride=8, use_spec=False)
+    acq = load_adaptive(_save(tmp_path / "n.pt", stage), rig)
+    assert acq.settings == AcquisitionSettings("uniform", 8, False)
+
+
+def test_an_export_without_settings_keeps_the_old_defaults(rig, tmp_path):
+    stage = _stage(rig, lighting_width=4, svbrdf_width=4, use_spec=False)
+    acq = load_adaptive(_save(tmp_path / "old.pt", stage, settings=None), rig)
+    assert acq.settings == AcquisitionSettings("initializer", 4, False)  # use_spec as G_sc was built
+
+
+def test_an_explicit_lpdf_source_overrides_the_file(rig, tmp_path):
+    stage = _stage(rig, lighting_width=4, svbrdf_width=4)
+    acq = load_adaptive(_save(tmp_path / "n.pt", stage), rig, lpdf_from="uniform")
+    assert acq.settings.lpdf_from == "uniform" and acq.settings.lpdf_stride == stage.model_cfg.lpdf_stride
+
+
+def test_networks_trained_on_the_true_lpdf_acquire_from_the_initializer(rig, tmp_path):
+    stage = _stage(rig, lighting_width=4, svbrdf_width=4, lpdf_from="ground_truth")
+    assert load_adaptive(_save(tmp_path / "n.pt", stage), rig).settings.lpdf_from == "initializer"
+
+
+def test_settings_that_contradict_the_networks_are_a_clear_error(rig, tmp_path):
+    stage = _stage(rig, lighting_width=4, svbrdf_width=4, use_spec=True)
+    path = _save(tmp_path / "n.pt", stage, settings={"use_spec": False})
+    with pytest.raises(NetworkFileError, match="built with use_spec=True"):
+        load_adaptive(path, rig)
+
+
+def test_unknown_settings_are_a_clear_error(rig, tmp_path):
+    path = _save(tmp_path / "n.pt", _stage(rig, lighting_width=4, svbrdf_width=4), settings={"lpdf_fom": "uniform"})
+    with pytest.raises(NetworkFileError, match=r"unknown acquisition settings \['lpdf_fom'\]"):
+        load_adaptive(path, rig)
+
+
+def test_a_baseline_export_is_a_fixed_pattern_acquisition(rig, tmp_path):
+    stage = _stage(rig, "fixed", patterns="monograd", svbrdf_width=4)
+    acq = load_baseline(_save(tmp_path / "b.pt", stage), rig)
+    assert torch.equal(acq.patterns, stage.nets["patterns"]())
+    assert acq.simulate(textured_material(8), method="reference").images.shape == (5, 3, 8, 8)

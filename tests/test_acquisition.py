@@ -48,37 +48,37 @@ class ImageReconstructor(torch.nn.Module):
 
 
 @pytest.fixture()
-def pipeline(rig):
+def acquisition(rig):
     return AdaptiveAcquisition(torch.full((3, 32, 32), 0.8), MeanInitializer(), LpdfLighting(),
                                ImageReconstructor(), rig, AcquisitionSettings(lpdf_stride=4))
 
 
-def test_simulated_acquisition_shows_l0_first_then_the_predicted_patterns(pipeline):
-    acq = pipeline.simulate(textured_material(16), method="reference")
+def test_simulated_acquisition_shows_l0_first_then_the_predicted_patterns(acquisition):
+    acq = acquisition.simulate(textured_material(16), method="reference")
     assert acq.patterns.shape == (5, 3, 32, 32) and acq.images.shape == (5, 3, 16, 16)
     assert torch.equal(acq.patterns[0], torch.full((3, 32, 32), 0.8))
     assert torch.allclose(acq.patterns[1, 0], acq.lpdf[0])
     assert acq.svbrdf.resolution == (16, 16) and acq.svbrdf.batch_size == 1
 
 
-def test_images_are_the_renders_of_the_shown_patterns(pipeline, rig):
+def test_images_are_the_renders_of_the_shown_patterns(acquisition, rig):
     m = textured_material(16)
-    acq = pipeline.simulate(m, method="reference")
+    acq = acquisition.simulate(m, method="reference")
     again = ms.render(m, acq.patterns, rig)[0]
     assert torch.allclose(acq.images, again, rtol=1e-5, atol=1e-7)
 
 
-def test_a_batch_gives_one_acquisition_per_material_with_its_own_patterns(pipeline):
+def test_a_batch_gives_one_acquisition_per_material_with_its_own_patterns(acquisition):
     m = ms.SVBRDF.cat([textured_material(16, seed=0, roughness=(0.05, 0.1)),
                        textured_material(16, seed=1, roughness=(0.7, 0.9))])
-    a, b = pipeline.simulate(m, method="reference")
+    a, b = acquisition.simulate(m, method="reference")
     assert not torch.allclose(a.patterns[1:], b.patterns[1:])
 
 
-def test_mitsuba_simulation_is_reproducible_for_a_seed(pipeline):
+def test_mitsuba_simulation_is_reproducible_for_a_seed(acquisition):
     m = textured_material(8)
-    a = pipeline.simulate(m, method="mitsuba", spp=2, seed=3)
-    b = pipeline.simulate(m, method="mitsuba", spp=2, seed=3)
+    a = acquisition.simulate(m, method="mitsuba", spp=2, seed=3)
+    b = acquisition.simulate(m, method="mitsuba", spp=2, seed=3)
     assert torch.equal(a.images, b.images)
 
 

@@ -22,8 +22,8 @@ import mitsvbrdf as ms
 from mitsvbrdf.data.procedural import generate
 from mitsvbrdf.importance import importance
 from mitsvbrdf.nets import LightingPredictor, network_from_record
-from mitsvbrdf.pipeline import maps_to_svbrdf
-from mitsvbrdf.relight import tonemap
+from mitsvbrdf.acquisition import maps_to_svbrdf
+from mitsvbrdf.viewing import tonemap
 from mitsvbrdf.training.config import TEST_SEED_BASE
 from report import write_report
 

@@ -18,8 +18,9 @@ from pathlib import Path
 import torch
 
 import mitsvbrdf as ms
-from mitsvbrdf.cli import _resize_svbrdf
-from mitsvbrdf.demo import DEFAULT_MATERIAL, DEFAULT_NETWORKS, load_pipeline
+from mitsvbrdf.acquisition import DEFAULT_NETWORKS, load_adaptive, maps_to_svbrdf
+from mitsvbrdf.demo import DEFAULT_MATERIAL
+from mitsvbrdf.importance import importance
 from report import write_report
 
 ROOT = Path(__file__).resolve().parent.parent
@@ -42,8 +43,8 @@ def main() -> None:
     ap.add_argument("--out", type=Path, default=ROOT / "docs" / "benchmarks")
     args = ap.parse_args()
     rig = ms.Rig.from_scene()
-    pipe = load_pipeline(args.networks, rig)
-    gt = _resize_svbrdf(ms.SVBRDF.load(DEFAULT_MATERIAL), args.size)
+    pipe = load_adaptive(args.networks, rig)
+    gt = ms.SVBRDF.load(DEFAULT_MATERIAL).resized(args.size)
     with torch.no_grad():
         i0 = ms.render(gt, pipe.l0[None], rig, method="mitsuba", spp=64, seed=1)[:, 0]
         adaptive, _, _ = pipe.predict_patterns(i0)
@@ -62,7 +63,7 @@ def main() -> None:
     text += ("\n## L_pdf texel stride: cost and error\n\nL_pdf of the initializer's estimate of the same "
              "material, computed on every s-th texel; error against s = 1 (relative RMSE of the [0, 1] L_pdf), "
              "and the RMS change of the 4 predicted patterns (drive values). The pipeline's default is "
-             f"{pipe.lpdf_stride}.\n\n| stride | L_pdf seconds | L_pdf rel. RMSE | pattern RMS change |\n"
+             f"{pipe.settings.lpdf_stride}.\n\n| stride | L_pdf seconds | L_pdf rel. RMSE | pattern RMS change |\n"
              "|---:|---:|---:|---:|\n" +
              "\n".join(f"| {r['stride']} | {r['seconds']} | {r['lpdf_rel_rmse']} | {r['pattern_rms_change']} |"
                        for r in stride_rows) + "\n")
@@ -72,9 +73,6 @@ def main() -> None:
 
 def lpdf_stride_tradeoff(pipe, i0: torch.Tensor, rig, strides=(1, 2, 4, 8, 16)) -> list[dict]:
     """Seconds and error of L_pdf per texel stride, and the change of the patterns G_l predicts from it."""
-    from mitsvbrdf.importance import importance
-    from mitsvbrdf.pipeline import maps_to_svbrdf
-
     with torch.no_grad():
         est = maps_to_svbrdf(pipe.initializer(i0))
         ref = importance(est.normal, est.roughness, rig, texel_stride=1)

@@ -21,7 +21,6 @@ from pathlib import Path
 import torch
 
 import mitsvbrdf as ms
-from mitsvbrdf.cli import _resize_svbrdf
 from mitsvbrdf.patterns import monograd, random
 from report import write_report
 
@@ -29,7 +28,7 @@ ROOT = Path(__file__).resolve().parent.parent
 
 
 def material(size: int, roughness: float) -> ms.SVBRDF:
-    base = _resize_svbrdf(ms.SVBRDF.load(ROOT / "examples" / "materials" / "artificial_0.png"), size)
+    base = ms.SVBRDF.load(ROOT / "examples" / "materials" / "artificial_0.png").resized(size)
     return ms.SVBRDF(normal=base.normal, diffuse=base.diffuse,
                      roughness=torch.full_like(base.roughness, roughness),
                      specular=torch.full_like(base.specular, 0.04))

@@ -36,7 +36,6 @@ from pathlib import Path
 import torch
 
 import mitsvbrdf as ms
-from mitsvbrdf.cli import _resize_svbrdf
 from mitsvbrdf.patterns import colorgrad, monograd, random, step_edges
 from estimators import DEFAULT, ESTIMATORS, estimator_rigs
 from report import write_report
@@ -46,7 +45,7 @@ SPPS = (1, 4, 16, 64, 256)
 
 
 def material(size: int, roughness: float, tilt_deg: float | None = None) -> ms.SVBRDF:
-    base = _resize_svbrdf(ms.SVBRDF.load(ROOT / "examples" / "materials" / "artificial_0.png"), size)
+    base = ms.SVBRDF.load(ROOT / "examples" / "materials" / "artificial_0.png").resized(size)
     normal = base.normal
     if tilt_deg is not None:
         t = math.radians(tilt_deg)
@@ -130,12 +129,12 @@ def at_time(rows: list[dict], est: str, key: str, seconds: float) -> float:
 def procedural_study(rigs: dict[str, ms.Rig], n: int, size: int, spps) -> tuple[list[dict], list[str]]:
     """Study 2: per estimator and spp, relative RMSE per (pattern group, material) and time."""
     from mitsvbrdf.data.procedural import generate
-    from mitsvbrdf.demo import DEFAULT_NETWORKS, load_pipeline
+    from mitsvbrdf.acquisition import DEFAULT_NETWORKS, load_adaptive
 
     mats = generate(n, size=size, seed=123)
     base = rigs[DEFAULT]
     with torch.no_grad():
-        acq = load_pipeline(DEFAULT_NETWORKS, base).simulate(mats, method="reference")
+        acq = load_adaptive(DEFAULT_NETWORKS, base).simulate(mats, method="reference")
     acq = acq if isinstance(acq, list) else [acq]
     groups = {"monograd": monograd(), "colorgrad": colorgrad(), "adaptive": torch.stack([a.patterns for a in acq])}
     refs = {g: ms.render(mats, p, base) for g, p in groups.items()}

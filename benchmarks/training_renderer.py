@@ -96,20 +96,14 @@ def score(networks: Path, materials, rig) -> dict[str, list[float]]:
     """Map RMSE (encoded maps) per map and their average, per material of ``materials``: each
     captured under the run's patterns by the reference renderer (clean and unbiased), reconstructed
     by its G_sc. {"rmse_normal": [...], ..., "rmse_average": [...]}."""
+    from mitsvbrdf.acquisition import load_baseline
     from mitsvbrdf.metrics import map_rmse
-    from mitsvbrdf.nets import network_from_record
-    from mitsvbrdf.nets.io import read_network_file
-    from mitsvbrdf.pipeline import maps_to_svbrdf
-    from mitsvbrdf.render import render
-    from mitsvbrdf.separation import reconstruct_maps
 
-    recs = read_network_file(networks, "baseline networks")
-    net = network_from_record(recs["svbrdf"], "svbrdf").eval()
-    pats = network_from_record(recs["patterns"], "patterns")().detach()
+    baseline = load_baseline(networks, rig)
     out: dict[str, list[float]] = {f"rmse_{k}": [] for k in (*MAPS, "average")}
     with torch.no_grad():
         for gt in materials:
-            pred = maps_to_svbrdf(reconstruct_maps(net, render(gt, pats, rig, method="reference"), pats, rig))
+            pred = baseline.simulate(gt, method="reference").svbrdf
             for k, v in map_rmse(pred, gt).items():
                 out[f"rmse_{k}"].append(float(v[0]))
     return out

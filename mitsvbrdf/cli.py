@@ -31,41 +31,29 @@ from pathlib import Path
 
 import numpy as np
 import torch
+from tqdm import tqdm
 
+from . import imageio
+from .acquisition import SIMULATE_SEED_MAX, check_resolution, load_adaptive, load_baseline, size_multiple
+from .capture.cli import add_parsers as add_capture_parsers
 from .checks import check_float, check_int, check_out_dir, check_out_file, check_seed
-
-
-def _resize_svbrdf(svbrdf, size: int):
-    """Area-resample the maps to size x size (normals renormalised)."""
-    from .svbrdf import SVBRDF
-
-    if svbrdf.resolution == (size, size):
-        return svbrdf
-    maps = {}
-    for name in ("normal", "diffuse", "roughness", "specular"):
-        m = torch.nn.functional.interpolate(getattr(svbrdf, name), size=(size, size), mode="area")
-        if name == "normal":
-            m = m / torch.linalg.vector_norm(m, dim=1, keepdim=True).clamp_min(1e-12)
-        maps[name] = m
-    return SVBRDF(**maps, name=svbrdf.name)
-
-
-def _pattern_strip(patterns: torch.Tensor) -> np.ndarray:
-    """(P, 3, h, w) -> (h, P * w, 3) image for viewing."""
-    p = patterns.detach().cpu()
-    return p.permute(2, 0, 3, 1).reshape(p.shape[2], -1, 3).numpy()
+from .data import preview, procedural
+from .demo import DEFAULT_MATERIAL, DEFAULT_NETWORKS, run_demo
+from .errors import MitsvbrdfError
+from .evaluation import evaluate, load_materials, simulated
+from .importance import importance
+from .patterns import load_patterns, pca_patterns
+from .render import QuadratureSettings, render
+from .rig import Rig
+from .svbrdf import SVBRDF
+from .training import TrainingInterrupted, load_config, train
+from .training.chain import load_chain, run_chain
+from .training.config import parse_duration
+from .training.trainer import RUN_FILES
+from .viewing import auto_exposure, pattern_strip, to_uint8, tonemap
 
 
 def cmd_simulate(args: argparse.Namespace) -> int:
-    from tqdm import tqdm
-
-    from . import imageio
-    from .importance import importance
-    from .patterns import load_patterns
-    from .render import QuadratureSettings, render
-    from .rig import Rig
-    from .svbrdf import SVBRDF
-
     # Every value is checked, and every input read, before rendering; the folder is made last.
     if args.resolution is not None:
         check_int("--resolution", args.resolution, 1)
@@ -77,7 +65,7 @@ def cmd_simulate(args: argparse.Namespace) -> int:
     rig = Rig.from_scene(args.scene)
     svbrdf = SVBRDF.load(args.material)
     if args.resolution is not None:
-        svbrdf = _resize_svbrdf(svbrdf, args.resolution)
+        svbrdf = svbrdf.resized(args.resolution)
     h, w = rig.lcd_cells
     patterns = load_patterns(args.patterns, h, w)
     rig.check_patterns(patterns)
@@ -96,14 +84,15 @@ def cmd_simulate(args: argparse.Namespace) -> int:
             images = render(svbrdf, patterns, rig, method=args.method, settings=settings, progress=bar.update)[0]
     render_s = time.time() - started
     peak = float(np.percentile(images.numpy(), 99.5))  # recorded as measured: 0 for a black capture
+    exposure = auto_exposure(images)  # one for the set: the PNGs compare the patterns
     out.mkdir(parents=True, exist_ok=True)
     written = []
     for k, img in enumerate(images):
         arr = img.permute(1, 2, 0).numpy()
         imageio.write_exr(out / f"image_{k:02d}.exr", arr)
-        imageio.write_png(out / f"image_{k:02d}.png", imageio.tonemap_preview(arr, exposure=1.0 / (peak or 1.0)))
+        imageio.write_png(out / f"image_{k:02d}.png", to_uint8(tonemap(arr, exposure)))
         written += [f"image_{k:02d}.exr", f"image_{k:02d}.png"]
-    imageio.write_png(out / "patterns.png", _pattern_strip(patterns))
+    imageio.write_png(out / "patterns.png", pattern_strip(patterns))
     with torch.no_grad():
         lpdf = importance(svbrdf.normal, svbrdf.roughness, rig, texel_stride=max(1, H // 64))[0, 0]
     imageio.write_png(out / "lpdf.png", lpdf.numpy()[..., None].repeat(3, -1))
@@ -125,13 +114,6 @@ def cmd_simulate(args: argparse.Namespace) -> int:
 
 def cmd_materials_preview(args: argparse.Namespace) -> int:
     """``materials preview``: a contact sheet of generated materials (maps + a reference render)."""
-    from tqdm import tqdm
-
-    from . import imageio
-    from .data import preview, procedural
-    from .patterns import load_patterns
-    from .rig import Rig
-
     for name, value, low in (("--n", args.n, 1), ("--size", args.size, 1), ("--tile", args.tile, 1),
                              ("--columns", args.columns, 1), ("--render-size", args.render_size, 0),
                              ("--start", args.start, 0)):
@@ -160,9 +142,6 @@ def cmd_materials_preview(args: argparse.Namespace) -> int:
 
 
 def cmd_demo(args: argparse.Namespace) -> int:
-    from .demo import DEFAULT_MATERIAL, DEFAULT_NETWORKS, run_demo
-    from .pipeline import SIMULATE_SEED_MAX
-
     check_int("--resolution", args.resolution, 1)
     check_int("--spp", args.spp, 1)
     check_int("--seed", args.seed, 0, SIMULATE_SEED_MAX)
@@ -177,39 +156,7 @@ def cmd_demo(args: argparse.Namespace) -> int:
     return 0
 
 
-def load_materials(data: str, size: int, n: int) -> list:
-    """Materials for evaluation: "procedural" (held-out seeds) or a folder of strips / map folders /
-    EXR files, each resampled to size x size."""
-    from .errors import MaterialError
-    from .svbrdf import SVBRDF
-
-    if data == "procedural":
-        from .data.procedural import generate
-        from .training.config import TEST_SEED_BASE
-
-        mats = generate(n, size=size, seed=TEST_SEED_BASE)
-        out = []
-        for i in range(n):
-            m = mats[i]
-            m.name = f"procedural:{TEST_SEED_BASE}:{i}"  # the batch's name is its first index
-            out.append(m)
-        return out
-    root = Path(data)
-    if not root.is_dir():
-        raise MaterialError(f"--data {data!r} is neither 'procedural' nor a folder")
-    paths = sorted(p for p in root.iterdir() if p.suffix.lower() in (".png", ".exr") or p.is_dir())
-    if not paths:
-        raise MaterialError(f"no materials found in {root} (expected strip PNGs, EXR files or folders of maps)")
-    out = []
-    for p in paths[:n] if n else paths:
-        m = SVBRDF.load(p)
-        out.append(SVBRDF(**_resize_svbrdf(m, size).maps(), name=p.stem))
-    return out
-
-
 def _named(spec: str, option: str) -> tuple[str, str]:
-    from .errors import MitsvbrdfError
-
     name, sep, path = spec.partition("=")
     if not sep or not name or not path:
         raise MitsvbrdfError(f"{option} expects NAME=NETWORKS.pt, got {spec!r}")
@@ -217,12 +164,6 @@ def _named(spec: str, option: str) -> tuple[str, str]:
 
 
 def cmd_evaluate(args: argparse.Namespace) -> int:
-    from .demo import load_pipeline
-    from .errors import MitsvbrdfError
-    from .evaluation import adaptive_method, baseline_method, evaluate
-    from .pipeline import SIMULATE_SEED_MAX, check_resolution, size_multiple
-    from .rig import Rig
-
     if args.figures is not None and args.figures < 0:  # before the networks and materials load
         raise MitsvbrdfError(f"--figures must be >= 0, got {args.figures}")
     check_int("--size", args.size, 1)
@@ -231,21 +172,22 @@ def cmd_evaluate(args: argparse.Namespace) -> int:
     check_int("--seed", args.seed, 0, SIMULATE_SEED_MAX)
     check_out_dir("--out", args.out)
     rig = Rig.from_scene(args.scene)
-    runs = [("adaptive", args.model, "initializer")]
-    runs += [(*_named(s, "--adaptive"), "initializer") for s in args.adaptive or []]
+    # each export says how it was trained (L_pdf source and stride, I^spec); --uniform-lpdf
+    # forces the uniform L_pdf on exports written before they said so
+    runs = [("adaptive", args.model, None)]
+    runs += [(*_named(s, "--adaptive"), None) for s in args.adaptive or []]
     runs += [(*_named(s, "--uniform-lpdf"), "uniform") for s in args.uniform_lpdf or []]
-    methods = {}
+    acquisitions = {}
     for name, path, lpdf_from in runs:
-        pipe = load_pipeline(path, rig, lpdf_from=lpdf_from)
-        methods[name] = adaptive_method(pipe, spp=args.spp, seed=args.seed)
+        acquisitions[name] = load_adaptive(path, rig, lpdf_from=lpdf_from)
     for spec in args.baseline or []:
         name, path = _named(spec, "--baseline")
-        if name in methods:
+        if name in acquisitions:
             raise MitsvbrdfError(f"two methods are named {name!r}")
-        methods[name] = baseline_method(path, rig, spp=args.spp, seed=args.seed)
+        acquisitions[name] = load_baseline(path, rig)
+    methods = {name: simulated(a, spp=args.spp, seed=args.seed) for name, a in acquisitions.items()}
     # The networks decide which sizes they take: check before any material is loaded or rendered.
-    nets = [getattr(m, "networks", torch.nn.Module()) for m in methods.values()]
-    check_resolution(args.size, size_multiple(*nets), "--size")
+    check_resolution(args.size, size_multiple(*acquisitions.values()), "--size")
     materials = load_materials(args.data, args.size, args.n)
     evaluate(methods, materials, rig, args.out, max_figures=args.figures, progress=not args.quiet)
     print((Path(args.out) / "summary.md").read_text())
@@ -253,11 +195,6 @@ def cmd_evaluate(args: argparse.Namespace) -> int:
 
 
 def cmd_patterns_pca(args: argparse.Namespace) -> int:
-    from .data.procedural import generate
-    from .importance import importance
-    from .patterns import pca_patterns
-    from .rig import Rig
-
     check_int("--count", args.count, 1)
     check_int("--n", args.n, args.count)  # the PCA of `count` patterns needs that many L_pdf maps
     check_int("--size", args.size, 1)
@@ -266,7 +203,7 @@ def cmd_patterns_pca(args: argparse.Namespace) -> int:
     rig = Rig.from_scene(args.scene)
     lp = []
     for start in range(0, args.n, 16):
-        mats = generate(min(16, args.n - start), size=args.size, seed=args.seed, start=start)
+        mats = procedural.generate(min(16, args.n - start), size=args.size, seed=args.seed, start=start)
         with torch.no_grad():
             lp.append(importance(mats.normal, mats.roughness, rig, texel_stride=args.stride))
     pats = pca_patterns(torch.cat(lp), n=args.count)
@@ -277,9 +214,6 @@ def cmd_patterns_pca(args: argparse.Namespace) -> int:
 
 
 def cmd_train_chain(args: argparse.Namespace) -> int:
-    from .training import TrainingInterrupted
-    from .training.chain import load_chain, run_chain
-
     chain = load_chain(args.chain, time_budget=args.time_budget, out=args.out)
     check_out_dir("--out" if args.out else f"{args.chain}: out", chain.out)
     try:
@@ -294,11 +228,6 @@ def cmd_train_chain(args: argparse.Namespace) -> int:
 
 
 def cmd_train(args: argparse.Namespace) -> int:
-    from .training import TrainingInterrupted, load_config, train
-    from .training.trainer import RUN_FILES
-
-    from .training.config import parse_duration
-
     overrides = list(args.set or [])
     if args.out:
         overrides.append(f'out="{args.out}"')
@@ -408,8 +337,9 @@ def build_parser() -> argparse.ArgumentParser:
     e.add_argument("--adaptive", action="append", metavar="NAME=NETWORKS.pt",
                    help="another adaptive run (stage2/finetune export), e.g. a variant without I^spec")
     e.add_argument("--uniform-lpdf", action="append", metavar="NAME=NETWORKS.pt",
-                   help="an adaptive run that predicts its patterns from a uniform L_pdf (the Diff. Init. "
-                        "ablation; train it with model.lpdf_from = \"uniform\")")
+                   help="an adaptive run forced to predict its patterns from a uniform L_pdf (the Diff. Init. "
+                        "ablation). Exports say how they were trained, so --adaptive is enough for them; "
+                        "this is for exports written before they did")
     e.add_argument("--baseline", action="append", metavar="NAME=NETWORKS.pt",
                    help="a baseline run (export of a 'fixed' stage: fixed or learned patterns, or flash)")
     e.add_argument("--data", default="procedural", help="'procedural' (held-out seeds) or a folder of materials")
@@ -423,15 +353,11 @@ def build_parser() -> argparse.ArgumentParser:
     e.add_argument("--out", required=True, help="output folder")
     e.add_argument("--quiet", action="store_true")
     e.set_defaults(func=cmd_evaluate)
-    from .capture.cli import add_parsers
-
-    add_parsers(sub)
+    add_capture_parsers(sub)
     return p
 
 
 def main(argv: list[str] | None = None) -> int:
-    from .errors import MitsvbrdfError
-
     args = build_parser().parse_args(argv)
     try:
         return args.func(args)

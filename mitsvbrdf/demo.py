@@ -15,63 +15,42 @@ reconstructs the SVBRDF, and writes into the output folder:
 
 from __future__ import annotations
 
-import html
 import json
 import time
 from pathlib import Path
 
 import torch
+from tqdm import tqdm
 
 from . import imageio
+from .acquisition import DEFAULT_NETWORKS, load_adaptive
 from .checks import check_out_dir
-from .evaluation import Capture, Relighting, material_figure, score
+from .evaluation import Relighting, score
 from .export import export_gltf, export_mitsuba_scene
-from .nets import NetworkFileError, network_from_record
-from .nets.io import read_network_file
-from .pipeline import AcquisitionPipeline
-from .relight import tonemap
 from .rig import Rig
 from .svbrdf import SVBRDF
+from .viewing import material_figure, pattern_strip, tonemap, write_html_page
 
 ROOT = Path(__file__).resolve().parent.parent
 DEFAULT_MATERIAL = ROOT / "examples" / "materials" / "artificial_0.png"
-DEFAULT_NETWORKS = Path(__file__).resolve().parent / "weights" / "networks.pt"
-NEEDED = ("l0", "initializer", "lighting", "svbrdf")
-
-
-def load_pipeline(path: str | Path, rig: Rig, **kwargs) -> AcquisitionPipeline:
-    """The acquisition pipeline from a ``networks.pt`` export of stage 2 or the fine-tuning."""
-    recs = read_network_file(path, "networks", " (train the stages, see docs/training.md)")
-    if not isinstance(recs, dict) or any(k not in recs for k in NEEDED):
-        have = sorted(recs) if isinstance(recs, dict) else type(recs).__name__
-        raise NetworkFileError(f"{path}: an acquisition needs networks {list(NEEDED)}, the file has {have} "
-                               "(use the export of stage2 or finetune)")
-    nets = {k: network_from_record(recs[k], f"{path}: {k}").eval() for k in NEEDED}
-    with torch.no_grad():
-        l0 = nets["l0"]()[0]
-    return AcquisitionPipeline(l0, nets["initializer"], nets["lighting"], nets["svbrdf"], rig, **kwargs)
 
 
 def run_demo(out: str | Path, *, material: str | Path = DEFAULT_MATERIAL, networks: str | Path = DEFAULT_NETWORKS,
              scene: str | Path | None = None, resolution: int = 256, spp: int = 64, seed: int = 0,
              progress: bool = True) -> dict:
     """Run the demo (module docstring); returns the record written to ``demo.json``."""
-    from tqdm import tqdm
-
-    from .cli import _pattern_strip, _resize_svbrdf
-
     out = check_out_dir("out", out)
     steps = ["load", "capture + reconstruct", "re-render", "write"]
     t0 = time.perf_counter()
     rig = Rig.from_scene(scene)
-    pipe = load_pipeline(networks, rig)
-    pipe.check_resolution(resolution, "resolution")  # before rendering anything
-    gt = _resize_svbrdf(SVBRDF.load(material), resolution)
+    acquisition = load_adaptive(networks, rig)
+    acquisition.check_resolution(resolution, "resolution")  # before rendering anything
+    gt = SVBRDF.load(material).resized(resolution)
     bar = tqdm(total=len(steps), desc="demo", disable=not progress)
     bar.set_postfix_str(steps[1])
     bar.update(1)
     t1 = time.perf_counter()
-    acq = pipe.simulate(gt, method="mitsuba", spp=spp, seed=seed)
+    acq = acquisition.simulate(gt, method="mitsuba", spp=spp, seed=seed)
     t2 = time.perf_counter()
     bar.set_postfix_str(steps[2])
     bar.update(1)
@@ -83,13 +62,13 @@ def run_demo(out: str | Path, *, material: str | Path = DEFAULT_MATERIAL, networ
     acq.svbrdf.save(out / "maps.png")
     acq.svbrdf.save(out / "maps.exr")
     gt.save(out / "ground_truth.png", include_render=False)
-    imageio.write_png(out / "patterns.png", _pattern_strip(acq.patterns))
-    imageio.write_png(out / "images.png", _pattern_strip(tonemap(acq.images)))
+    imageio.write_png(out / "patterns.png", pattern_strip(acq.patterns))
+    imageio.write_png(out / "images.png", pattern_strip(tonemap(acq.images)))
     for k, img in enumerate(acq.images):
         imageio.write_exr(out / f"image_{k:02d}.exr", img.permute(1, 2, 0).numpy())
     relit = torch.cat([gt_relit, pred_relit], -2)  # ground truth above, reconstruction below
-    imageio.write_png(out / "relit.png", _pattern_strip(relit))
-    material_figure(gt, {"adaptive": (Capture(acq.patterns, acq.images, acq.svbrdf), pred_relit)}, gt_relit,
+    imageio.write_png(out / "relit.png", pattern_strip(relit))
+    material_figure(gt, {"adaptive": (acq, pred_relit)}, gt_relit,
                     out / "summary.png")
     export_mitsuba_scene(acq.svbrdf, out / "export" / "mitsuba", rig)
     export_gltf(acq.svbrdf, out / "export" / "gltf", sample_size=rig.sample_size)
@@ -105,12 +84,11 @@ def run_demo(out: str | Path, *, material: str | Path = DEFAULT_MATERIAL, networ
 
 
 def _report(out: Path, record: dict) -> None:
-    rows = "".join(f"<tr><td>{html.escape(k)}</td><td>{v}</td></tr>" for k, v in record["metrics"].items())
-    imgs = "".join(f'<h2>{t}</h2><img src="{f}" style="max-width:100%">' for t, f in
-                   (("Summary", "summary.png"), ("Patterns L0..L4", "patterns.png"), ("Captured images", "images.png"),
-                    ("Re-rendered: ground truth (top) vs reconstruction (bottom)", "relit.png"),
-                    ("Reconstructed maps", "maps.png"), ("Ground truth maps", "ground_truth.png")))
-    (out / "report.html").write_text(
-        "<!doctype html><html><head><meta charset='utf-8'><title>mitsvbrdf demo</title></head><body>"
-        f"<h1>mitsvbrdf demo</h1><p>{html.escape(record['material'])} at {record['resolution']} px, "
-        f"{record['spp']} spp, {record['seconds']['total']} s.</p><table>{rows}</table>{imgs}</body></html>\n")
+    write_html_page(
+        out / "report.html", "mitsvbrdf demo",
+        paragraphs=[f"{record['material']} at {record['resolution']} px, {record['spp']} spp, "
+                    f"{record['seconds']['total']} s."],
+        table=(["metric", "value"], list(record["metrics"].items())),
+        images=[("Summary", "summary.png"), ("Patterns L0..L4", "patterns.png"), ("Captured images", "images.png"),
+                ("Re-rendered: ground truth (top) vs reconstruction (bottom)", "relit.png"),
+                ("Reconstructed maps", "maps.png"), ("Ground truth maps", "ground_truth.png")])

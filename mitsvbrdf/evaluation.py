@@ -1,8 +1,8 @@
 """Evaluation of acquisition methods on a set of materials: tables, per-material figures, HTML.
 
-A *method* is a callable ``method(svbrdf) -> Capture`` that acquires a ground-truth material
-(simulated) and reconstructs it: the adaptive pipeline (:mod:`mitsvbrdf.pipeline`), or a baseline
-with fixed patterns. :func:`evaluate` runs every method on every material and measures, per
+A *method* is a callable ``method(svbrdf) -> Acquisition`` that acquires a ground-truth material
+(simulated) and reconstructs it: :func:`simulated` makes one of any acquisition of
+:mod:`mitsvbrdf.acquisition` (the adaptive method or a baseline). :func:`evaluate` runs every method on every material and measures, per
 material (paper Tables 1 and 3):
 
 * RMSE of each encoded map and their average;
@@ -19,7 +19,6 @@ Outputs in ``out_dir``: ``metrics.csv`` (one row per method and material), ``sum
 from __future__ import annotations
 
 import csv
-import html
 import re
 from dataclasses import dataclass
 from pathlib import Path
@@ -28,29 +27,56 @@ from typing import Callable, Iterable
 import numpy as np
 import torch
 from torch import Tensor
+from tqdm import tqdm
 
-from .metrics import MAP_CHANNELS, image_rmse, image_ssim, lpips_model, map_rmse
+from .acquisition import Acquisition, check_resolution, size_multiple
+from .data.procedural import generate
+from .errors import MaterialError
+from .metrics import image_rmse, image_ssim, lpips_model, map_rmse
 from .patterns import step_edges
-from .relight import point_light_images, random_point_lights, tonemap
+from .relight import point_light_images, random_point_lights
 from .render import render
 from .rig import Rig
 from .svbrdf import SVBRDF
+from .training.config import TEST_SEED_BASE
+from .viewing import auto_exposure, material_figure, tonemap, write_html_page
 
 
-@dataclass
-class Capture:
-    """What a method produced for one material: its patterns (P, 3, h, w), the images it saw
-    (P, 3, H, W), and the reconstruction (B = 1)."""
-
-    patterns: Tensor
-    images: Tensor
-    svbrdf: SVBRDF
+#: A method maps a ground-truth material to its acquisition. :func:`simulated` also sets
+#: ``method.networks`` to the torch module(s) it runs, whose U-Nets decide which material sizes
+#: it takes (:func:`mitsvbrdf.acquisition.size_multiple`).
+Method = Callable[[SVBRDF], Acquisition]
 
 
-#: A method maps a ground-truth material to its capture and reconstruction. The builders below
-#: also set ``method.networks`` to the torch module(s) it runs, whose U-Nets decide which
-#: material sizes it takes (:func:`mitsvbrdf.pipeline.size_multiple`).
-Method = Callable[[SVBRDF], Capture]
+def simulated(acquisition, *, method: str = "mitsuba", spp: int = 64, seed: int = 0) -> Method:
+    """An acquisition of :mod:`mitsvbrdf.acquisition` (adaptive, fixed patterns or flash) as an
+    evaluation method: its simulated capture of each ground truth through ``method``."""
+
+    def run(gt: SVBRDF) -> Acquisition:
+        return acquisition.simulate(gt, method=method, spp=spp, seed=seed)
+
+    run.networks = acquisition
+    return run
+
+
+def load_materials(data: str, size: int, n: int) -> list[SVBRDF]:
+    """Materials for evaluation: "procedural" (``n`` held-out seeds) or a folder of strips / map
+    folders / EXR files (the first ``n``, all for 0), each resampled to size x size."""
+    if data == "procedural":
+        mats = generate(n, size=size, seed=TEST_SEED_BASE)
+        out = []
+        for i in range(n):
+            m = mats[i]
+            m.name = f"procedural:{TEST_SEED_BASE}:{i}"  # the batch's name is its first index
+            out.append(m)
+        return out
+    root = Path(data)
+    if not root.is_dir():
+        raise MaterialError(f"--data {data!r} is neither 'procedural' nor a folder")
+    paths = sorted(p for p in root.iterdir() if p.suffix.lower() in (".png", ".exr") or p.is_dir())
+    if not paths:
+        raise MaterialError(f"no materials found in {root} (expected strip PNGs, EXR files or folders of maps)")
+    return [SVBRDF(**SVBRDF.load(p).resized(size).maps(), name=p.stem) for p in (paths[:n] if n else paths)]
 
 
 @dataclass
@@ -79,19 +105,13 @@ class Relighting:
         return torch.cat([pts, edges], 1)
 
 
-def _exposure(images: Tensor) -> Tensor:
-    """Per-image exposure (L,) putting each ground-truth image's 99th percentile at 1."""
-    q = torch.quantile(images.flatten(1).float(), 0.99, dim=1)
-    return 1.0 / q.clamp_min(1e-12)
-
-
 def score(pred: SVBRDF, gt: SVBRDF, rig: Rig, relight: Relighting) -> tuple[dict[str, float], Tensor, Tensor]:
     """Metrics of one reconstruction (B = 1); also returns the display-value re-renderings
     (ground truth, prediction), each (L + E, 3, H, W)."""
     row = {f"rmse_{k}": float(v[0]) for k, v in map_rmse(pred, gt).items()}
     with torch.no_grad():
         g, p = relight.images(gt, rig)[0], relight.images(pred, rig)[0]
-    ex = _exposure(g).view(-1, 1, 1, 1)
+    ex = auto_exposure(g, per_image=True).view(-1, 1, 1, 1)  # each ground-truth image's own
     tg, tp = tonemap(g * ex, 1.0), tonemap(p * ex, 1.0)
     n = relight.lights.shape[0]
     row["rerender_rmse_points"] = float(image_rmse(tp[None, :n], tg[None, :n])[0])
@@ -110,11 +130,6 @@ def evaluate(methods: dict[str, Method], materials: Iterable[SVBRDF], rig: Rig, 
 
     Returns the per-material rows. Raises MaterialError (a ValueError) for an empty material set.
     """
-    from tqdm import tqdm
-
-    from .errors import MaterialError
-    from .pipeline import check_resolution, size_multiple
-
     materials = list(materials)
     if not materials:  # before the folder is made
         raise MaterialError("no materials to evaluate")
@@ -152,8 +167,13 @@ def evaluate(methods: dict[str, Method], materials: Iterable[SVBRDF], rig: Rig, 
             material_figure(gt, shown, tg, path)
             figs.append((name, f"figures/{path.name}"))
     bar.close()
-    _write_tables(rows, out, lp_note)
-    _write_index(out, figs, lp_note)
+    summary = summarize(rows)
+    _write_tables(rows, summary, out, lp_note)
+    cols = _columns(summary)
+    write_html_page(out / "index.html", "Evaluation", paragraphs=[_caption(summary), lp_note],
+                    table=(["Method"] + [HEADS[c] for c in cols],
+                           [[s["method"]] + [f"{s[c]:.4f}" for c in cols] for s in summary]),
+                    images=figs)
     return rows
 
 
@@ -171,165 +191,36 @@ def summarize(rows: list[dict]) -> list[dict]:
     return out
 
 
-def _write_tables(rows: list[dict], out: Path, lp_note: str) -> None:
+HEADS = {"rmse_normal": "Normal", "rmse_diffuse": "Diffuse", "rmse_roughness": "Roughness",
+         "rmse_specular": "Specular", "rmse_average": "Average", "rerender_rmse": "Re-render RMSE",
+         "ssim": "SSIM", "lpips": "LPIPS"}
+
+
+def _columns(summary: list[dict]) -> list[str]:
+    return SUMMARY_COLUMNS + (["lpips"] if "lpips" in summary[0] else [])
+
+
+def _caption(summary: list[dict]) -> str:
+    return f"Map RMSE on encoded maps and re-rendering metrics, mean over {summary[0]['materials']} materials."
+
+
+def _write_tables(rows: list[dict], summary: list[dict], out: Path, lp_note: str) -> None:
     with open(out / "metrics.csv", "w", newline="") as f:
         w = csv.DictWriter(f, fieldnames=list(rows[0]))
         w.writeheader()
         w.writerows(rows)
-    summary = summarize(rows)
     with open(out / "summary.csv", "w", newline="") as f:
         w = csv.DictWriter(f, fieldnames=list(summary[0]))
         w.writeheader()
         w.writerows(summary)
-    cols = SUMMARY_COLUMNS + (["lpips"] if "lpips" in summary[0] else [])
-    heads = {"rmse_normal": "Normal", "rmse_diffuse": "Diffuse", "rmse_roughness": "Roughness",
-             "rmse_specular": "Specular", "rmse_average": "Average", "rerender_rmse": "Re-render RMSE",
-             "ssim": "SSIM", "lpips": "LPIPS"}
-    lines = ["| Method | " + " | ".join(heads[c] for c in cols) + " |", "|---|" + "---:|" * len(cols)]
+    cols = _columns(summary)
+    lines = ["| Method | " + " | ".join(HEADS[c] for c in cols) + " |", "|---|" + "---:|" * len(cols)]
     lines += [f"| {s['method']} | " + " | ".join(f"{s[c]:.4f}" for c in cols) + " |" for s in summary]
     note = f"\n\n{lp_note}." if lp_note else ""
-    (out / "summary.md").write_text(
-        f"Map RMSE on encoded maps and re-rendering metrics, mean over {summary[0]['materials']} materials.\n\n"
-        + "\n".join(lines) + note + "\n")
-
-
-def _write_index(out: Path, figs: list[tuple[str, str]], lp_note: str) -> None:
-    table = (out / "summary.md").read_text().split("\n\n")[1]
-    body = "".join(f'<h2>{html.escape(n)}</h2><img src="{html.escape(p)}" style="max-width:100%">' for n, p in figs)
-    (out / "index.html").write_text(
-        "<!doctype html><html><head><meta charset='utf-8'><title>mitsvbrdf evaluation</title></head><body>"
-        f"<h1>Evaluation</h1><pre>{html.escape(table)}</pre><p>{html.escape(lp_note)}</p>{body}</body></html>\n")
+    (out / "summary.md").write_text(_caption(summary) + "\n\n" + "\n".join(lines) + note + "\n")
 
 
 def _file_stem(name: str) -> str:
     """A material name as a portable file name: characters other than letters, digits, ``.``,
     ``_`` and ``-`` (e.g. the colons of "procedural:1000000:0") become ``-``."""
     return re.sub(r"[^A-Za-z0-9._-]", "-", name).strip(".") or "material"
-
-
-def _display(t: Tensor) -> np.ndarray:
-    """(3, H, W) or (1, H, W) values in [0, 1] -> (H, W, 3) array."""
-    t = t.detach().float().cpu().clamp(0, 1)
-    if t.shape[0] == 1:
-        t = t.expand(3, *t.shape[1:])
-    return t.permute(1, 2, 0).numpy()
-
-
-def material_figure(gt: SVBRDF, shown: dict[str, tuple[Capture, Tensor]], gt_relit: Tensor, path: Path) -> None:
-    """One PNG per material: per method a row of patterns + captured images, the maps (GT row
-    first), error maps, and re-renderings (GT row first)."""
-    import matplotlib
-
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
-
-    names = list(MAP_CHANNELS)
-    n_relit = min(4, gt_relit.shape[0])
-    rows = 1 + 3 * len(shown)
-    cols = max(10, len(names) + n_relit)
-    fig, axes = plt.subplots(rows, cols, figsize=(cols * 1.3, rows * 1.4))
-    for ax in axes.flat:
-        ax.axis("off")
-    enc_gt = gt.encoded()[0]
-
-    def put(r, c, img, title=""):
-        ax = axes[r, c]
-        ax.axis("on")  # keep the frame: a white pattern must not vanish into the page
-        ax.set_xticks([])
-        ax.set_yticks([])
-        ax.imshow(img)
-        ax.set_title(title, fontsize=6)
-
-    for c, k in enumerate(names):
-        put(0, c, _display(enc_gt[MAP_CHANNELS[k]]), f"GT {k}")
-    for c in range(n_relit):
-        put(0, len(names) + c, _display(gt_relit[c]), "GT relit")
-    for m, (name, (cap, relit)) in enumerate(shown.items()):
-        r0 = 1 + 3 * m
-        p = cap.patterns.shape[0]
-        scale = 1.0 / float(torch.quantile(cap.images.flatten().float(), 0.99).clamp_min(1e-12))
-        for c in range(min(p, cols // 2)):
-            put(r0, 2 * c, _display(cap.patterns[c]), f"{name}: L{c}")
-            put(r0, 2 * c + 1, _display(tonemap(cap.images[c], scale)), f"I{c}")
-        enc = cap.svbrdf.encoded()[0]
-        for c, k in enumerate(names):
-            put(r0 + 1, c, _display(enc[MAP_CHANNELS[k]]), f"{name} {k}")
-            diff = enc[MAP_CHANNELS[k]] - enc_gt[MAP_CHANNELS[k]]
-            put(r0 + 2, c, _display(diff.abs().mean(0, keepdim=True) * 4),
-                f"|error| x4 (rmse {float(diff.square().mean().sqrt()):.3f})")
-        for c in range(n_relit):
-            put(r0 + 1, len(names) + c, _display(relit[c]), "relit")
-    fig.tight_layout()
-    fig.savefig(path, dpi=90)
-    plt.close(fig)
-
-
-def fixed_pattern_method(patterns: Tensor, reconstructor: Callable[[Tensor, Tensor], Tensor], rig: Rig, *,
-                         method: str = "mitsuba", spp: int = 64, seed: int = 0) -> Method:
-    """A baseline that captures with fixed ``patterns`` (P, 3, h, w) and reconstructs with
-    ``reconstructor(images (1, P, 3, H, W), patterns) -> (1, 10, H, W)`` encoded maps."""
-    from .pipeline import maps_to_svbrdf
-
-    def run(gt: SVBRDF) -> Capture:
-        with torch.no_grad():
-            imgs = render(gt, patterns, rig, method=method, spp=spp, seed=seed)
-            pred = maps_to_svbrdf(reconstructor(imgs, patterns))
-        return Capture(patterns, imgs[0], pred)
-
-    return run
-
-
-def adaptive_method(pipeline, *, method: str = "mitsuba", spp: int = 64, seed: int = 0) -> Method:
-    """The adaptive pipeline as an evaluation method (simulated capture)."""
-
-    def run(gt: SVBRDF) -> Capture:
-        acq = pipeline.simulate(gt, method=method, spp=spp, seed=seed)
-        return Capture(acq.patterns, acq.images, acq.svbrdf)
-
-    run.networks = pipeline
-    return run
-
-
-def flash_method(flash, reconstructor: Callable[[Tensor], Tensor], rig: Rig) -> Method:
-    """The flash baseline: one image under ``flash`` (a :class:`mitsvbrdf.relight.FlashLight`),
-    ``reconstructor(images (1, 1, 3, H, W)) -> (1, 10, H, W)`` encoded maps. Its capture shows a
-    black LCD pattern: the LCD is off."""
-    from .pipeline import maps_to_svbrdf
-
-    dark = torch.zeros(1, 3, *rig.lcd_cells)
-
-    def run(gt: SVBRDF) -> Capture:
-        with torch.no_grad():
-            imgs = flash(gt, rig)
-            pred = maps_to_svbrdf(reconstructor(imgs))
-        return Capture(dark, imgs[0], pred)
-
-    return run
-
-
-def baseline_method(path: str | Path, rig: Rig, *, spp: int = 64, seed: int = 0) -> Method:
-    """A baseline from the ``networks.pt`` export of a ``fixed`` training stage: its pattern group
-    (fixed or learned) or its flash, and its G_sc. Raises NetworkFileError for other files."""
-    from .nets import NetworkFileError, network_from_record
-    from .nets.io import read_network_file
-    from .separation import reconstruct_maps
-
-    recs = read_network_file(path, "baseline networks")
-    if not isinstance(recs, dict) or "svbrdf" not in recs or not ({"patterns", "flash"} & set(recs)):
-        have = sorted(recs) if isinstance(recs, dict) else type(recs).__name__
-        raise NetworkFileError(f"{path}: a baseline needs networks 'svbrdf' and 'patterns' (or 'flash'), "
-                               f"the file has {have} (use the export of a 'fixed' stage)")
-    net = network_from_record(recs["svbrdf"], f"{path}: svbrdf").eval()
-    if "flash" in recs:
-        run = flash_method(network_from_record(recs["flash"], f"{path}: flash"), net, rig)
-        run.networks = net
-        return run
-    pats = network_from_record(recs["patterns"], f"{path}: patterns")().detach()
-    if tuple(pats.shape[1:]) != (3, *rig.lcd_cells):
-        raise NetworkFileError(f"{path}: patterns {tuple(pats.shape[1:])} do not fit this rig's LCD "
-                               f"{(3, *rig.lcd_cells)}")
-    run = fixed_pattern_method(pats, lambda images, patterns: reconstruct_maps(net, images, patterns, rig), rig,
-                               spp=spp, seed=seed)
-    run.networks = net
-    return run
-

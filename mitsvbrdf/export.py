@@ -37,6 +37,7 @@ import numpy as np
 from . import imageio
 from .rig import Rig
 from .svbrdf import SVBRDF
+from .viewing import srgb_encode
 
 
 def _single(svbrdf: SVBRDF) -> SVBRDF:
@@ -47,11 +48,6 @@ def _single(svbrdf: SVBRDF) -> SVBRDF:
 
 def _hwc(t) -> np.ndarray:
     return t[0].permute(1, 2, 0).float().numpy()
-
-
-def _srgb(x: np.ndarray) -> np.ndarray:
-    x = np.clip(x, 0.0, 1.0)
-    return np.where(x <= 0.0031308, 12.92 * x, 1.055 * np.power(x, 1 / 2.4) - 0.055)
 
 
 def export_mitsuba_scene(svbrdf: SVBRDF, out_dir: str | Path, rig: Rig | None = None,
@@ -124,8 +120,8 @@ def export_gltf(svbrdf: SVBRDF, out_dir: str | Path, sample_size: float = 0.06) 
     out.mkdir(parents=True, exist_ok=True)
     rough = _hwc(m.roughness)[..., 0]
     mr = np.stack([np.zeros_like(rough), rough, np.zeros_like(rough)], -1)
-    maps = {"baseColor.png": _srgb(_hwc(m.diffuse)), "metallicRoughness.png": mr,
-            "normal.png": (_hwc(m.normal) + 1.0) / 2.0, "specularColor.png": _srgb(_hwc(m.specular))}
+    maps = {"baseColor.png": srgb_encode(_hwc(m.diffuse)), "metallicRoughness.png": mr,
+            "normal.png": (_hwc(m.normal) + 1.0) / 2.0, "specularColor.png": srgb_encode(_hwc(m.specular))}
     for name, a in maps.items():
         imageio.write_png(out / name, np.clip(a, 0.0, 1.0))
     path = out / "material.gltf"

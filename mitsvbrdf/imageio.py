@@ -303,33 +303,3 @@ def write_exr(path: str | Path, data: np.ndarray | dict[str, np.ndarray], *, hal
             f.write(str(path))
     except Exception as e:  # OSError, or OpenEXR's RuntimeError for an unwritable path
         raise ImageFileError(f"{path}: cannot write EXR ({type(e).__name__}: {e})") from e
-
-
-# ---- previews ----------------------------------------------------------------------------------
-
-
-def tonemap_preview(array: Any, exposure: float | None = None) -> np.ndarray:
-    """Linear radiance -> uint8 sRGB-encoded preview of the same shape (for PNG previews of renders).
-
-    Args:
-        array: linear values, any shape (numpy array or CPU/GPU torch tensor).
-        exposure: multiplier applied before encoding. ``None`` picks it automatically so the 99th
-            percentile of all values maps to 1 (falling back to the maximum when that percentile
-            is 0, and to 1 for an all-black image); brighter values clip to white.
-
-    Returns:
-        uint8 array, ``round(255 * srgb(clip(exposure * x, 0, 1)))`` with the standard sRGB
-        transfer function; NaN counts as 0 and +Inf as white.
-    """
-    if hasattr(array, "detach"):  # torch tensor
-        array = array.detach().cpu().numpy()
-    a = np.nan_to_num(np.asarray(array, dtype=np.float64), nan=0.0, posinf=np.inf, neginf=0.0)
-    if exposure is None:
-        finite = a[np.isfinite(a)]
-        p = float(np.percentile(finite, 99)) if finite.size else 0.0
-        if p <= 0 and finite.size:
-            p = float(finite.max())
-        exposure = 1.0 / p if p > 0 else 1.0
-    x = np.clip(a * exposure, 0.0, 1.0)
-    srgb = np.where(x <= 0.0031308, 12.92 * x, 1.055 * np.power(x, 1 / 2.4) - 0.055)
-    return np.round(srgb * 255).astype(np.uint8)

@@ -34,6 +34,7 @@ import torch
 from torch import Tensor
 
 from .errors import PatternError
+from .imageio import read_image
 
 FAMILIES = ("uniform", "monograd", "colorgrad", "step_edges", "picked", "random")
 
@@ -164,8 +165,6 @@ def load_patterns(name_or_path: str | Path, h: int = 32, w: int = 32) -> Tensor:
             raise PatternError(f"{path}: expected a tensor, found {type(t).__name__}")
         t = t.float()
     else:
-        from .imageio import read_image
-
         img = torch.from_numpy(read_image(path)).float()  # (rows, cols, C)
         if img.shape[-1] == 1:
             img = img.expand(*img.shape[:2], 3)

@@ -9,8 +9,8 @@ capture images):
 
 :class:`FlashLight` is the point light at the camera of the flash baseline.
 
-Images are linear radiance (B, L, 3, H, W). :func:`tonemap` maps them to display values for
-metrics that want a perceptual scale (SSIM, picture files).
+Images are linear radiance (B, L, 3, H, W); :func:`mitsvbrdf.viewing.tonemap` maps them to display
+values for metrics that want a perceptual scale (SSIM) and for pictures.
 """
 
 from __future__ import annotations
@@ -81,13 +81,3 @@ class FlashLight(torch.nn.Module):
 
     def forward(self, svbrdf, rig: Rig) -> Tensor:
         return point_light_images(svbrdf, rig.camera_position[None], rig, intensity=self.config["intensity"])
-
-
-def tonemap(images: Tensor, exposure: float | None = None) -> Tensor:
-    """Linear radiance -> display values in [0, 1]: scale so the 99th percentile of each image set
-    maps to 1 (or by ``exposure``), clip, then the sRGB transfer curve."""
-    if exposure is None:
-        q = torch.quantile(images.detach().flatten().float()[:1_000_000], 0.99).clamp_min(1e-12)
-        exposure = 1.0 / float(q)
-    x = (images * exposure).clamp(0.0, 1.0)
-    return torch.where(x <= 0.0031308, 12.92 * x, 1.055 * x.clamp_min(1e-12) ** (1 / 2.4) - 0.055)

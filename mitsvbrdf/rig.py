@@ -141,6 +141,14 @@ def _to_tuple3(v: object, name: str, path: Path) -> tuple[float, float, float]:
     return tuple(float(x) for x in a)
 
 
+def texel_grid(resolution: int | tuple[int, int]) -> tuple[int, int]:
+    """(H, W) of the sample's texel grid from N (square) or (H, W); ValueError unless both are >= 1."""
+    h, w = (resolution, resolution) if isinstance(resolution, (int, np.integer)) else tuple(resolution)
+    if int(h) < 1 or int(w) < 1:
+        raise ValueError(f"resolution must be positive, got {resolution}")
+    return int(h), int(w)
+
+
 @dataclass(frozen=True, eq=False)
 class Rig:
     """Camera + LCD + sample geometry and the display model of one capture setup.
@@ -284,15 +292,9 @@ class Rig:
         """(h, w, 3) centres of the LCD cells."""
         return self.lcd_cell_corners(device).mean(dim=2)
 
-    def texel_grid(self, resolution: int | tuple[int, int]) -> tuple[int, int]:
-        h, w = (resolution, resolution) if isinstance(resolution, int) else tuple(resolution)
-        if h < 1 or w < 1:
-            raise ValueError(f"resolution must be positive, got {resolution}")
-        return int(h), int(w)
-
     def surface_points(self, resolution: int | tuple[int, int] = 256, device=None) -> Tensor:
         """(H, W, 3) texel-centre positions on the sample (z = 0), metres."""
-        h, w = self.texel_grid(resolution)
+        h, w = texel_grid(resolution)
         s = self.sample_size
         x = (torch.arange(w, dtype=torch.float64, device=device) + 0.5) / w * s - s / 2
         y = s / 2 - (torch.arange(h, dtype=torch.float64, device=device) + 0.5) / h * s

@@ -101,10 +101,3 @@ def separate_specular(images: Tensor, patterns: Tensor, rig: Rig, *,
     spec = imgs[:, i] * ld[:, j] - imgs[:, j] * ld[:, i]
     return spec if batched else spec[0]
 
-
-def reconstruct_maps(reconstructor, images: Tensor, patterns: Tensor, rig: Rig) -> Tensor:
-    """G_sc on captures: ``reconstructor(images, I^spec)`` with I^spec separated from ``images``
-    (B, P, 3, H, W) under ``patterns``, or ``reconstructor(images, None)`` when its ``use_spec``
-    attribute is False (a single-encoder G_sc: the baselines and Table 3's "Adaptive")."""
-    use_spec = getattr(reconstructor, "use_spec", True)
-    return reconstructor(images, separate_specular(images, patterns, rig) if use_spec else None)

@@ -282,6 +282,26 @@ class SVBRDF:
         """A copy whose tensors are detached from the autograd graph (sharing storage)."""
         return self._apply(lambda t: t.detach())
 
+    def resized(self, size: int | tuple[int, int]) -> SVBRDF:
+        """The maps (and render tile) resampled to ``size`` (N or (H, W)) texels: area averages
+        when no axis grows, bilinear interpolation otherwise; normals renormalised. Returns self
+        when the size is already that."""
+        h, w = (size, size) if isinstance(size, (int, np.integer)) else tuple(size)
+        if h < 1 or w < 1:
+            raise MaterialError(f"cannot resize a material to {h}x{w} texels")
+        if self.resolution == (h, w):
+            return self
+        H, W = self.resolution
+
+        def resample(t: Tensor) -> Tensor:
+            if h <= H and w <= W:
+                return torch.nn.functional.interpolate(t, size=(h, w), mode="area")
+            return torch.nn.functional.interpolate(t, size=(h, w), mode="bilinear", align_corners=False)
+
+        maps = {k: resample(v) for k, v in self.maps().items()}
+        maps["normal"] = maps["normal"] / torch.linalg.vector_norm(maps["normal"], dim=1, keepdim=True).clamp_min(1e-12)
+        return SVBRDF(**maps, render=None if self.render is None else resample(self.render), name=self.name)
+
     def requires_grad_(self, requires_grad: bool = True) -> SVBRDF:
         """Set ``requires_grad`` on the four maps (leaf tensors) in place; returns self."""
         for t in self.maps().values():

@@ -241,10 +241,10 @@ def test_ctrl_c_in_any_command_exits_130_with_one_line(monkeypatch, capsys):
 
 
 def test_evaluate_refuses_a_material_size_its_networks_cannot_take_before_making_the_folder(rig, tmp_path):
-    from mitsvbrdf.demo import load_pipeline
-    from mitsvbrdf.evaluation import adaptive_method, evaluate
+    from mitsvbrdf.acquisition import load_adaptive
+    from mitsvbrdf.evaluation import evaluate, simulated
 
-    method = adaptive_method(load_pipeline(NETWORKS, rig), spp=1)
+    method = simulated(load_adaptive(NETWORKS, rig), spp=1)
     with pytest.raises(MitsvbrdfError, match="multiple of 8"):
         evaluate({"adaptive": method}, [ms.SVBRDF.constant(size=20)], rig, tmp_path / "ev", progress=False)
     assert not (tmp_path / "ev").exists()

@@ -10,7 +10,7 @@ from mitsvbrdf import imageio
 from mitsvbrdf.capture.devices import DeviceError, FileDropCamera, ImageFileDisplay, SimulatedRig, check_pattern
 from mitsvbrdf.capture.hdr import Response
 from mitsvbrdf.capture.session import BracketCapture, CaptureSession, SessionError, merge_frames
-from mitsvbrdf.demo import DEFAULT_NETWORKS, load_pipeline
+from mitsvbrdf.acquisition import DEFAULT_NETWORKS, load_adaptive
 from mitsvbrdf.render import render
 from mitsvbrdf.sensor import SensorNoise
 
@@ -34,7 +34,7 @@ def bracket(sim, exposures=EXPOSURES):
 
 @pytest.fixture(scope="module")
 def pipeline(rig):
-    return load_pipeline(DEFAULT_NETWORKS, rig)
+    return load_adaptive(DEFAULT_NETWORKS, rig)
 
 
 class FailingCamera:

@@ -94,7 +94,7 @@ def test_evaluate_with_a_malformed_or_foreign_baseline_is_a_clear_error(tmp_path
 
 
 def test_held_out_procedural_materials_are_named_by_their_index():
-    from mitsvbrdf.cli import load_materials
+    from mitsvbrdf.evaluation import load_materials
     from mitsvbrdf.data.procedural import generate
     from mitsvbrdf.training.config import TEST_SEED_BASE
 

@@ -6,20 +6,21 @@ import pytest
 import torch
 
 import mitsvbrdf as ms
-from mitsvbrdf.evaluation import Capture, Relighting, evaluate, fixed_pattern_method, summarize
+from mitsvbrdf.acquisition import Acquisition, FixedAcquisition
+from mitsvbrdf.evaluation import Relighting, evaluate, simulated, summarize
 
 from conftest import textured_material
 
 
 def _oracle(gt):
     """A method that returns the ground truth itself."""
-    return Capture(torch.zeros(1, 3, 32, 32), torch.zeros(1, 3, *gt.resolution), gt)
+    return Acquisition(torch.zeros(1, 3, 32, 32), torch.zeros(1, 3, *gt.resolution), gt)
 
 
 def _flat(gt):
     """A method that returns a grey, flat material whatever it sees."""
     h, w = gt.resolution
-    return Capture(torch.zeros(1, 3, 32, 32), torch.zeros(1, 3, h, w),
+    return Acquisition(torch.zeros(1, 3, 32, 32), torch.zeros(1, 3, h, w),
                    ms.SVBRDF.constant(diffuse=0.5, roughness=0.5, specular=0.04, size=(h, w)))
 
 
@@ -83,11 +84,13 @@ def test_materials_with_one_name_get_one_row_and_figure_each(rig, tmp_path, reli
 def test_fixed_pattern_baseline_sees_its_patterns(rig, tmp_path, relight):
     seen = {}
 
-    def reconstructor(images, patterns):
-        seen["shape"] = tuple(images.shape)
-        return torch.full((1, 10, *images.shape[-2:]), 0.5)
+    class Reconstructor(torch.nn.Module):
+        def forward(self, images, spec):
+            seen["shape"] = tuple(images.shape)
+            return torch.full((1, 10, *images.shape[-2:]), 0.5)
 
-    method = fixed_pattern_method(ms.pattern_family("monograd"), reconstructor, rig, method="reference")
+    method = simulated(FixedAcquisition(ms.pattern_family("monograd"), Reconstructor(), rig, use_spec=False),
+                       method="reference")
     cap = method(textured_material(8))
     assert seen["shape"] == (1, 5, 3, 8, 8)
     assert cap.images.shape == (5, 3, 8, 8)

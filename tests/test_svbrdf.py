@@ -460,3 +460,34 @@ def test_to_detach_and_requires_grad():
     m64 = m.to(torch.float64)
     assert m64.dtype == torch.float64 and m64.device == torch.device("cpu")
     assert all(t.dtype == torch.float64 for t in m64.maps().values())
+
+
+def test_resizing_down_averages_texel_areas():
+    m = SVBRDF.constant(size=4)
+    m.diffuse[..., :2] = 0.0
+    m.diffuse[..., 2:] = 1.0
+    small = m.resized(2)
+    assert small.resolution == (2, 2)
+    assert torch.allclose(small.diffuse[0, 0], torch.tensor([[0.0, 1.0], [0.0, 1.0]]))
+
+
+def test_resizing_keeps_unit_normals_and_the_name():
+    n = torch.randn(1, 3, 8, 8)
+    n[:, 2] = n[:, 2].abs() + 1
+    m = SVBRDF(normal=n / n.norm(dim=1, keepdim=True), diffuse=torch.rand(1, 3, 8, 8),
+                  roughness=torch.rand(1, 1, 8, 8), specular=torch.rand(1, 3, 8, 8), name="x")
+    for size in (4, 12, (6, 10)):
+        r = m.resized(size)
+        assert torch.allclose(r.normal.norm(dim=1), torch.ones(1, *r.resolution), atol=1e-5)
+        assert r.name == "x"
+    assert m.resized((6, 10)).resolution == (6, 10)
+
+
+def test_resizing_to_the_same_size_is_the_material_itself():
+    m = SVBRDF.constant(size=4)
+    assert m.resized(4) is m
+
+
+def test_resizing_to_no_texels_is_refused():
+    with pytest.raises(MaterialError, match="0x0"):
+        SVBRDF.constant(size=4).resized(0)

@@ -410,4 +410,4 @@ def test_small_configs_run_as_a_chain_of_stages(tmp_path):
         assert last["step"] == 2 and torch.isfinite(torch.tensor(last["loss"]))
         prev = stage
     assert set(torch.load(tmp_path / "finetune" / "networks.pt", weights_only=True)) == \
-        {"l0", "initializer", "lighting", "svbrdf"}
+        {"l0", "initializer", "lighting", "svbrdf", "acquisition"}

@@ -26,6 +26,7 @@ from ..errors import MitsvbrdfError
 from ..render import render
 from ..rig import Rig
 from ..svbrdf import SVBRDF
+from .devices import SimulatedRig
 from .color import chart_reference_rgb, delta_e_2000, fit_color_matrix
 from .display import diffuse_target, fit_decay_power, fit_gamma
 from .geometry import fit_lcd_pose, ray_offsets
@@ -65,8 +66,6 @@ def calibration_targets(size: int, rig: Rig, albedo: float = 0.8) -> dict[str, S
 def simulated_bench(truth: Rig, size: int, exposures=(1.0,), **camera) -> tuple[Bench, "SimulatedRig"]:
     """A bench on the simulated rig (``camera``: :class:`SimulatedRig` options; the reference
     renderer unless ``method`` says otherwise) whose ``place`` swaps in the targets."""
-    from .devices import SimulatedRig
-
     targets = calibration_targets(size, truth)
     sim = SimulatedRig(targets["white"], truth, **{"method": "reference", **camera})
     return Bench(BracketCapture(sim, sim, exposures, response=sim.response), lambda t: sim.place(targets[t])), sim

@@ -40,19 +40,12 @@ from pathlib import Path
 import numpy as np
 
 from ..errors import SceneError
-from ..rig import Rig
+from ..rig import Rig, texel_grid
 from ..scene_xml import load_scene_xml
 from .scene_file import edit_scene
 
 # Mitsuba local camera frame (x left, y up, z forward) -> the usual vision frame (x right, y down).
 _FLIP = np.diag([-1.0, -1.0, 1.0])
-
-
-def _texel_grid(resolution: int | tuple[int, int]) -> tuple[int, int]:
-    h, w = (resolution, resolution) if isinstance(resolution, (int, np.integer)) else tuple(resolution)
-    if int(h) < 1 or int(w) < 1:
-        raise ValueError(f"resolution must be positive, got {resolution}")
-    return int(h), int(w)
 
 
 def _texel_to_plane(sample_size: float, resolution: tuple[int, int]) -> np.ndarray:
@@ -144,7 +137,7 @@ class CameraModel:
     def sample_homography(self, sample_size: float, resolution: int | tuple[int, int]) -> np.ndarray:
         """(3, 3) homography from texel coordinates (col + 0.5, row + 0.5) of an Hs x Ws grid
         over the sample (side ``sample_size`` metres, on z = 0) to pixel (x, y)."""
-        h = self.plane_homography() @ _texel_to_plane(sample_size, _texel_grid(resolution))
+        h = self.plane_homography() @ _texel_to_plane(sample_size, texel_grid(resolution))
         return h / abs(h[2, 2])  # abs: keep the sign of depth (see _in_front)
 
     # ---- resampling ---------------------------------------------------------------------------
@@ -166,7 +159,7 @@ class CameraModel:
         frame = np.asarray(frame)
         if frame.shape[:2] != tuple(self.size):
             raise ValueError(f"frame is {frame.shape[:2]} pixels, the camera's film is {tuple(self.size)} (H, W)")
-        hs, ws = _texel_grid(resolution)
+        hs, ws = texel_grid(resolution)
         hom = self.sample_homography(sample_size, (hs, ws))
         self._check_inside(hom, (hs, ws))
         # warp wants output (col, row) -> input (col, row), both with integer pixel centres.

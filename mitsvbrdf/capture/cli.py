@@ -14,7 +14,21 @@ from pathlib import Path
 
 import numpy as np
 
+from .. import imageio
+from ..acquisition import DEFAULT_NETWORKS, load_adaptive
+from ..checks import check_float, check_int, check_out_dir, check_out_file, check_seed
 from ..errors import MitsvbrdfError
+from ..rig import Rig
+from ..svbrdf import SVBRDF
+from . import calibrate as cal
+from .camera import (CameraModel, calibrate_intrinsics, checkerboard_points, find_checkerboard_corners,
+                     write_camera_intrinsics)
+from .devices import (DeviceError, FileDropCamera, ImageFileDisplay, SimulatedRig, TriggeredCamera, WindowDisplay,
+                      controller_trigger)
+from .display import write_display_model
+from .geometry import write_lcd_pose
+from .scene_file import read_camera_calibration, write_camera_calibration
+from .session import BracketCapture, CaptureSession
 
 
 def exposure_times(text: str, what: str = "--exposures", at_least: int = 1) -> tuple[float, ...]:
@@ -33,8 +47,6 @@ def exposure_times(text: str, what: str = "--exposures", at_least: int = 1) -> t
 
 def check_device_options(args, exposures_needed: int = 1) -> tuple[float, ...]:
     """Check the numbers of the device options before any device is opened; returns the exposures."""
-    from ..checks import check_float, check_int, check_seed
-
     check_int("--spp", args.spp, 1)
     check_seed("--seed", args.seed)
     check_float("--gain", args.gain, 0.0, low_open=True)
@@ -63,16 +75,10 @@ def add_device_options(p: argparse.ArgumentParser) -> None:
 
 def _devices(args, rig, material):
     """(display, camera, response, colour matrix, closers) from the device options."""
-    from ..rig import Rig
-    from .devices import FileDropCamera, ImageFileDisplay, SimulatedRig, TriggeredCamera, WindowDisplay
-    from .devices import controller_trigger
-    from .scene_file import read_camera_calibration
-
     response, matrix = read_camera_calibration(args.scene) if args.scene else (None, None)
     ctl = None
     if args.controller:
-        from .controller import ControllerError, SerialController
-        from .devices import DeviceError
+        from .controller import ControllerError, SerialController  # pyserial: only for a real controller
 
         try:
             ctl = SerialController(args.controller)
@@ -95,9 +101,6 @@ def _devices(args, rig, material):
 
 
 def _bracket(args, rig, display, cam, response, matrix, raw_only: bool = False):
-    from .camera import CameraModel
-    from .session import BracketCapture
-
     rectify = None
     if not cam.rectified:
         model = CameraModel.from_rig(rig)
@@ -107,22 +110,15 @@ def _bracket(args, rig, display, cam, response, matrix, raw_only: bool = False):
 
 
 def cmd_capture(args: argparse.Namespace) -> int:
-    from ..checks import check_out_dir
-    from ..cli import _resize_svbrdf
-    from ..demo import DEFAULT_NETWORKS, load_pipeline
-    from ..rig import Rig
-    from ..svbrdf import SVBRDF
-    from .controller import ControllerError
-    from .devices import DeviceError
-    from .session import CaptureSession
+    from .controller import ControllerError  # pyserial: a capture-only package
 
     check_device_options(args)
     check_out_dir("--out", args.out)
     rig = Rig.from_scene(args.scene)
     networks = args.networks or str(DEFAULT_NETWORKS)
-    pipeline = load_pipeline(networks, rig)
-    pipeline.check_resolution(args.resolution, "--resolution")  # before the first frame
-    material = _resize_svbrdf(SVBRDF.load(args.simulate), args.resolution) if args.simulate else None
+    acquisition = load_adaptive(networks, rig)
+    acquisition.check_resolution(args.resolution, "--resolution")  # before the first frame
+    material = SVBRDF.load(args.simulate).resized(args.resolution) if args.simulate else None
     display, cam, response, matrix, ctl = _devices(args, rig, material)
     try:
         capture = _bracket(args, rig, display, cam, response, matrix)
@@ -130,7 +126,7 @@ def cmd_capture(args: argparse.Namespace) -> int:
                     "networks": str(Path(networks).resolve()), "resolution": args.resolution}
         if args.simulate:
             settings.update(simulate=str(Path(args.simulate).resolve()), spp=args.spp, seed=args.seed)
-        session = CaptureSession(args.out, pipeline, capture, settings)
+        session = CaptureSession(args.out, acquisition, capture, settings)
         session.run(resume=args.resume, progress=not args.quiet)
     except ControllerError as e:
         raise DeviceError(f"{e}; every frame so far is in {args.out}: fix the link and rerun with --resume") from e
@@ -147,13 +143,6 @@ def cmd_capture(args: argparse.Namespace) -> int:
 
 
 def cmd_calibrate(args: argparse.Namespace) -> int:
-    from ..checks import check_float, check_out_file
-    from ..rig import Rig
-    from . import calibrate as cal
-    from .display import write_display_model
-    from .geometry import write_lcd_pose
-    from .scene_file import write_camera_calibration
-
     check_out_file("--out", args.out)
     if args.step != "intrinsics":
         check_device_options(args, exposures_needed=2 if args.step == "response" else 1)
@@ -198,10 +187,6 @@ def cmd_calibrate(args: argparse.Namespace) -> int:
 
 
 def _calibrate_intrinsics(args, rig) -> int:
-    from .. import imageio
-    from ..checks import check_float
-    from .camera import calibrate_intrinsics, checkerboard_points, find_checkerboard_corners, write_camera_intrinsics
-
     if not args.views:
         raise MitsvbrdfError("calibrate intrinsics needs --views DIR of checkerboard photos")
     if not Path(args.views).is_dir():

@@ -40,11 +40,14 @@ from typing import Callable
 
 import numpy as np
 import torch
+from tqdm import tqdm
 
 from .. import imageio
+from ..acquisition import Acquisition, AdaptiveAcquisition
 from ..errors import MitsvbrdfError
 from ..svbrdf import SVBRDF
-from .devices import Camera, Display
+from ..viewing import pattern_strip, tonemap
+from .devices import Camera, Display, rig_digest
 from .hdr import Response, merge_hdr
 
 MANIFEST = "session.json"
@@ -157,7 +160,7 @@ class BracketCapture:
         return np.ascontiguousarray(rad.transpose(2, 0, 1)), counts
 
     def __call__(self, patterns: torch.Tensor) -> torch.Tensor:
-        """In-memory capture for :meth:`AcquisitionPipeline.acquire`: (1, P, 3, h, w) -> (1, P, 3, H, W)."""
+        """In-memory capture for :meth:`~mitsvbrdf.acquisition.AdaptiveAcquisition.acquire`: (1, P, 3, h, w) -> (1, P, 3, H, W)."""
         out = [torch.from_numpy(self.radiance(self.bracket(p.cpu().numpy()))[0]) for p in patterns[0]]
         return torch.stack(out)[None]
 
@@ -167,25 +170,25 @@ class CaptureSession:
 
     Args:
         folder: the session folder (created).
-        pipeline: an :class:`~mitsvbrdf.pipeline.AcquisitionPipeline` (L_0, the networks, the rig).
+        acquisition: an :class:`~mitsvbrdf.acquisition.AdaptiveAcquisition` (L_0, the networks,
+            their settings, the rig).
         capture: the devices and the HDR settings (:class:`BracketCapture`).
         settings: anything else that must not change on resume (scene, networks file, ...),
             JSON-serialisable; stored in the manifest.
     """
 
-    def __init__(self, folder: str | Path, pipeline, capture: BracketCapture, settings: dict | None = None):
-        from .devices import rig_digest
-
-        self.folder, self.pipeline, self.capture = Path(folder), pipeline, capture
+    def __init__(self, folder: str | Path, acquisition: AdaptiveAcquisition, capture: BracketCapture,
+                 settings: dict | None = None):
+        self.folder, self.acquisition, self.capture = Path(folder), acquisition, capture
         cam = capture.camera
         linear = bool(cam.linear)
         response = None if linear or capture.response is None else _sha256(
             np.ascontiguousarray(capture.response.log_exposure, np.float64).tobytes())
         frame = getattr(cam, "frame_settings", None)
-        settings = {"exposures": list(capture.exposures), "linear": linear, "lcd_cells": list(pipeline.rig.lcd_cells),
+        settings = {"exposures": list(capture.exposures), "linear": linear, "lcd_cells": list(acquisition.rig.lcd_cells),
                     "response_sha256": response,
                     "color_matrix": None if capture.color_matrix is None else np.asarray(capture.color_matrix).tolist(),
-                    "rig_sha256": rig_digest(pipeline.rig), "networks_sha256": _state_digest(pipeline),
+                    "rig_sha256": rig_digest(acquisition.rig), "networks_sha256": _state_digest(acquisition),
                     **{f"camera.{k}": v for k, v in (frame() if frame is not None else {}).items()},
                     **(settings or {})}
         # as the manifest will read it back (tuples become lists), so that a comparison is exact
@@ -302,16 +305,10 @@ class CaptureSession:
         return self._intact(rel) and np.array_equal(np.load(self._path(rel), allow_pickle=False), pattern)
 
     def run(self, *, resume: bool = False, progress: bool = True):
-        """Run (or continue) the session; returns the :class:`~mitsvbrdf.pipeline.Acquisition`."""
-        from tqdm import tqdm
-
-        from ..cli import _pattern_strip
-        from ..pipeline import Acquisition
-        from ..relight import tonemap
-
+        """Run (or continue) the session; returns the :class:`~mitsvbrdf.acquisition.Acquisition`."""
         self._open(resume)
         bar = tqdm(total=6, desc="capture", disable=not progress)
-        pipe = self.pipeline
+        pipe = self.acquisition
         l0 = pipe.l0.cpu().numpy()
         i0 = torch.from_numpy(self._step(0, l0))
         bar.update(1)
@@ -342,11 +339,11 @@ class CaptureSession:
         svbrdf = pipe.reconstruct(images_t[None], patterns[None])
         self._save("maps.exr", lambda p: svbrdf.save(p))
         self._save("maps.png", lambda p: svbrdf.save(p))
-        self._save("patterns.png", lambda p: imageio.write_png(p, _pattern_strip(patterns)))
-        self._save("images.png", lambda p: imageio.write_png(p, _pattern_strip(tonemap(images_t))))
+        self._save("patterns.png", lambda p: imageio.write_png(p, pattern_strip(patterns)))
+        self._save("images.png", lambda p: imageio.write_png(p, pattern_strip(tonemap(images_t))))
         self.manifest.update(done=True, maps="maps.exr")
         self._commit()
         bar.update(1)
         bar.close()
         initial = SVBRDF.load(self._path(pred["initial"]))
-        return Acquisition(patterns, images_t, torch.from_numpy(np.load(self._path(pred["lpdf"]))), initial, svbrdf[0])
+        return Acquisition(patterns, images_t, svbrdf[0], torch.from_numpy(np.load(self._path(pred["lpdf"]))), initial)

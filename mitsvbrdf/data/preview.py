@@ -3,9 +3,8 @@
 One material is a row of five tiles ``[normal | diffuse | roughness | specular | render]``; rows
 are laid out in ``columns`` side-by-side groups. Maps are shown as stored (normal encoded as
 (n + 1) / 2, the others as values in [0, 1]); the rendering is the reference renderer's image under
-one pattern (default: uniform white), scaled by one exposure for the whole sheet (the 99.5th
-percentile of all renders maps to 0.8), compressed with x / (1 + x) above that and sRGB-encoded,
-so relative brightness between materials stays visible.
+one pattern (default: uniform white), tone-mapped with one exposure for the whole sheet
+(:func:`mitsvbrdf.viewing.tonemap`), so relative brightness between materials stays visible.
 """
 
 from __future__ import annotations
@@ -17,49 +16,27 @@ import numpy as np
 import torch
 from torch import Tensor
 
+from ..render import QuadratureSettings, render
 from ..svbrdf import SVBRDF
+from ..viewing import tonemap
 
 LABEL_HEIGHT = 12
-
-
-def resize_maps(svbrdf: SVBRDF, size: int) -> SVBRDF:
-    """Area-resample (or bilinearly upsample) all maps to size x size; normals renormalised."""
-    if svbrdf.resolution == (size, size):
-        return svbrdf
-    down = size <= min(svbrdf.resolution)
-    maps = {}
-    for k, m in svbrdf.maps().items():
-        r = torch.nn.functional.interpolate(m, size=(size, size), mode="area") if down else \
-            torch.nn.functional.interpolate(m, size=(size, size), mode="bilinear", align_corners=False)
-        if k == "normal":
-            r = r / torch.linalg.vector_norm(r, dim=1, keepdim=True).clamp_min(1e-12)
-        maps[k] = r
-    return SVBRDF(**maps, name=svbrdf.name)
-
-
-def tonemap_sheet(images: Tensor) -> Tensor:
-    """(B, 3, H, W) linear radiance -> [0, 1] display values with one exposure for all (see module doc)."""
-    peak = torch.quantile(images.flatten()[:: max(1, images.numel() // 1_000_000)], 0.995).clamp_min(1e-8)
-    x = images / peak * 0.8
-    x = torch.where(x <= 0.8, x, 0.8 + 0.2 * (x - 0.8) / (0.2 + (x - 0.8)))
-    x = x.clamp(0, 1)
-    return torch.where(x <= 0.0031308, 12.92 * x, 1.055 * x.clamp_min(1e-12) ** (1 / 2.4) - 0.055)
 
 
 def contact_sheet(svbrdf: SVBRDF, renders: Tensor | None = None, *, tile: int = 128, columns: int = 2,
                   labels: list[str] | None = None) -> np.ndarray:
     """Lay out B materials as an (rows * (tile + label), columns * 5 * tile, 3) float image in [0, 1].
 
-    ``renders`` (B, 3, h, w) are linear; they are tone-mapped together by :func:`tonemap_sheet`.
+    ``renders`` (B, 3, h, w) are linear; they are tone-mapped together (one exposure).
     Without renders, rows have four tiles. ``labels`` (one per material) are drawn above each row.
     """
-    m = resize_maps(svbrdf.detach().to("cpu"), tile)
+    m = svbrdf.detach().to("cpu").resized(tile)
     tiles = [(m.normal + 1) / 2, m.diffuse, m.roughness.expand(-1, 3, -1, -1), m.specular]
     if renders is not None:
         r = renders.detach().cpu().float()
         if r.shape[-1] != tile:
             r = torch.nn.functional.interpolate(r, size=(tile, tile), mode="area" if r.shape[-1] > tile else "bilinear")
-        tiles.append(tonemap_sheet(r))
+        tiles.append(tonemap(r))
     row_imgs = torch.cat(tiles, dim=-1).clamp(0, 1)  # (B, 3, tile, k * tile)
     B = row_imgs.shape[0]
     lab = LABEL_HEIGHT if labels else 0
@@ -94,10 +71,8 @@ def render_previews(svbrdf: SVBRDF, rig, patterns: Tensor, *, size: int = 128,
     Uses a coarse quadrature (1 Gauss point per cell, 8 x 8 lobe points), about 0.3 % of the peak
     off the default settings on typical materials, for speed; materials render one by one.
     """
-    from ..render import QuadratureSettings, render
-
     settings = QuadratureSettings(cell_order=1, lobe_grid=8)
-    small = resize_maps(svbrdf.detach(), size)
+    small = svbrdf.detach().resized(size)
     out = []
     with torch.no_grad():
         for b in range(small.batch_size):

@@ -8,6 +8,11 @@ import torch
 from torch import nn
 
 from ..errors import MitsvbrdfError
+from ..relight import FlashLight
+from .initializer import Initializer, LearnedPattern, PatternSet
+from .lighting import LightingPredictor
+from .point import PointPredictor
+from .svbrdf_net import SVBRDFPredictor
 
 
 class NetworkFileError(MitsvbrdfError):
@@ -15,12 +20,6 @@ class NetworkFileError(MitsvbrdfError):
 
 
 def registry() -> dict[str, type[nn.Module]]:
-    from .initializer import Initializer, LearnedPattern, PatternSet
-    from .lighting import LightingPredictor
-    from .point import PointPredictor
-    from .svbrdf_net import SVBRDFPredictor
-    from ..relight import FlashLight
-
     return {c.__name__: c for c in (Initializer, LearnedPattern, PatternSet, LightingPredictor, PointPredictor,
                                    SVBRDFPredictor, FlashLight)}
 

@@ -19,6 +19,8 @@ from torch import Tensor
 
 from ..rig import Rig
 from .quadrature import QuadratureSettings
+from .ltc import render_ltc
+from .ltc_fit import default_table
 from .reference import render_reference
 
 METHODS = ("reference", "mitsuba", "ltc")
@@ -39,13 +41,10 @@ def render(svbrdf, patterns: Tensor, rig: Rig, method: str = "reference", *, spp
     if method == "mitsuba":
         if lobes != "both":
             raise ValueError("method='mitsuba' renders both lobes; use method='reference' for one lobe")
-        from .mitsuba import render_mitsuba
+        from .mitsuba import render_mitsuba  # imports Mitsuba / Dr.Jit: only when asked for
 
         return render_mitsuba(svbrdf, patterns, rig, spp=spp, seed=seed)
     if method == "ltc":
-        from .ltc import render_ltc
-        from .ltc_fit import default_table
-
         return render_ltc(svbrdf, patterns, rig, table if table is not None else default_table(),
                           lobes=lobes, mode=mode)
     raise ValueError(f"unknown render method {method!r}; available: {', '.join(METHODS)}")

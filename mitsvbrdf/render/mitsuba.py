@@ -22,7 +22,7 @@ import torch
 from torch import Tensor
 
 from ..checks import SEED_MAX, check_int, check_seed
-from ..errors import MitsvbrdfError, PatternError
+from ..errors import MitsvbrdfError, PatternError, SceneError
 from ..rig import Rig
 from .control_variate import control_variate
 
@@ -45,11 +45,9 @@ def load_scene(source: str, variant: str):
         try:
             scene = mi.load_file(source)
         except RuntimeError as e:
-            from ..errors import SceneError
             raise SceneError(f"{source}: Mitsuba cannot load the scene ({e})") from e
         integrator = scene.integrator()
         if not isinstance(integrator, mitsvbrdf_plugins.plugin_class("importance", variant)):
-            from ..errors import SceneError
             raise SceneError(f"{source}: the scene's integrator must be type=\"importance\" for method='mitsuba'")
         _SCENES[key] = (mi, scene, mi.traverse(scene), integrator)
     return _SCENES[key]

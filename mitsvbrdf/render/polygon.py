@@ -23,6 +23,8 @@ import math
 import torch
 from torch import Tensor
 
+from ..brdf import tangent_frame
+
 
 def _edge_vector(p: Tensor, q: Tensor) -> Tensor:
     """theta (p x q) / |p x q| for edges p -> q (..., 3); finite and differentiable when p ~ q."""
@@ -97,8 +99,6 @@ def lcd_cell_form_factors(x: Tensor, n: Tensor, wo: Tensor, cell_corners: Tensor
     Returns:
         (N, C) form factors.
     """
-    from ..brdf import tangent_frame
-
     t, b = tangent_frame(n)
     frame = torch.stack([t, b, n], 1)  # (N, 3, 3), rows = local axes
     rel = cell_corners[None] - x[:, None, None]  # (N, C, 4, 3)

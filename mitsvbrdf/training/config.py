@@ -23,6 +23,7 @@ Errors name the offending key path: ``train.stpes: unknown key (did you mean 'st
 
 from __future__ import annotations
 
+import copy
 import dataclasses
 import difflib
 import math
@@ -187,7 +188,7 @@ def load_config(path: str | Path | None = None, overrides: list[str] | None = No
             table = tomllib.loads(p.read_text())
         except tomllib.TOMLDecodeError as e:
             raise ConfigError(f"{p}: not valid TOML ({e})") from e
-    table = _deepcopy(table)
+    table = copy.deepcopy(table)
     for o in overrides or []:
         keys, value = parse_override(o)
         node = table
@@ -251,14 +252,6 @@ def _leaves(t: Any, prefix: str = ""):
             yield from _leaves(v, f"{prefix[:-1]}[{i}].")
     else:
         yield prefix[:-1], t
-
-
-def _deepcopy(t: Any) -> Any:
-    if isinstance(t, dict):
-        return {k: _deepcopy(v) for k, v in t.items()}
-    if isinstance(t, list):
-        return [_deepcopy(v) for v in t]
-    return t
 
 
 def config_table(cfg: Config) -> dict:

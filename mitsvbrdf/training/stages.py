@@ -27,8 +27,8 @@ from typing import Callable, ClassVar
 import torch
 from torch import Tensor, nn
 
+from ..acquisition import AcquisitionSettings, predict, reconstruct_maps
 from ..errors import MitsvbrdfError
-from ..importance import importance
 from ..losses import PLAIN_MAP_WEIGHTS, importance_consistency_loss, inverse_importance_loss, map_l1
 from ..nets import (Initializer, LearnedPattern, LightingPredictor, PatternSet, PointPredictor, SVBRDFPredictor,
                     network_from_record)
@@ -36,7 +36,7 @@ from ..patterns import load_patterns, prepend_pattern
 from ..relight import FlashLight
 from ..render import render
 from ..rig import Rig
-from ..separation import diffuse_irradiance, reconstruct_maps
+from ..separation import diffuse_irradiance
 from ..svbrdf import SVBRDF
 
 
@@ -84,6 +84,11 @@ class TrainingStage(nn.Module):
                                      f"stage {self.name!r} needs a {type(self.nets[n]).__name__}")
             net.requires_grad_(not frozen)
             self.nets[n] = net
+
+    def acquisition_settings(self) -> AcquisitionSettings | None:
+        """How an acquisition must use this stage's networks (saved with them by the export);
+        None for a stage whose networks acquire nothing by themselves."""
+        return None
 
     def param_groups(self, lr: float) -> list[dict]:
         """The optimiser's parameter groups at base learning rate ``lr``: every trainable parameter
@@ -183,33 +188,31 @@ class AdaptiveStage(TrainingStage):
         self.nets["initializer"] = Initializer()
         self.nets["lighting"] = LightingPredictor(4, rig.lcd_cells, model.lighting_width, tuple(model.lighting_blocks))
 
-    def lpdf(self, batch: SVBRDF, i0: Tensor) -> Tensor:
+    def acquisition_settings(self) -> AcquisitionSettings:
         cfg = self.model_cfg
-        if cfg.lpdf_from == "uniform":
-            return torch.ones(batch.batch_size, 1, *self.rig.lcd_cells, device=i0.device, dtype=i0.dtype)
-        if cfg.lpdf_from == "ground_truth":
-            n, r = batch.normal, batch.roughness
-        else:
-            with torch.no_grad():
-                from ..pipeline import maps_to_svbrdf
-
-                est = maps_to_svbrdf(self.nets["initializer"](i0))
-            n, r = est.normal, est.roughness
-        with torch.no_grad():
-            return importance(n, r, self.rig, texel_stride=cfg.lpdf_stride)
+        # G_sc (built here or pretrained) knows whether it takes I^spec; stage 1 has none
+        use_spec = self.nets["svbrdf"].use_spec if "svbrdf" in self.nets else cfg.use_spec
+        return AcquisitionSettings(cfg.lpdf_from, cfg.lpdf_stride, use_spec)
 
     def adaptive_captures(self, batch: SVBRDF, seed: int):
+        """The acquisition's steps (:func:`mitsvbrdf.acquisition.predict`) with this stage's
+        renderer for the captures: (patterns (B, 5, 3, h, w), images (B, 5, 3, H, W), losses)."""
         g = _generator(seed, batch.device)
         with torch.no_grad():
             l0, i0 = self.first_image(batch, seed, g)
-        lpdf = self.lpdf(batch, i0)
-        out = self.nets["lighting"](i0, lpdf)
-        imgs = self.capture(batch, out.patterns, seed + 1, g)
-        patterns = prepend_pattern(l0.detach(), out.patterns)
+        pred = predict(self.nets["initializer"], self.nets["lighting"], i0, self.rig, self.acquisition_settings(),
+                       ground_truth=batch)
+        imgs = self.capture(batch, pred.patterns, seed + 1, g)
+        patterns = prepend_pattern(l0.detach(), pred.patterns)
         images = torch.cat([i0[:, None], imgs], 1)
-        losses = {"consistency": importance_consistency_loss(l0.detach(), out.patterns, lpdf),
-                  "inverse": inverse_importance_loss(out.normal, out.roughness, batch.normal, batch.roughness)}
+        losses = {"consistency": importance_consistency_loss(l0.detach(), pred.patterns, pred.lpdf),
+                  "inverse": inverse_importance_loss(pred.normal, pred.roughness, batch.normal, batch.roughness)}
         return patterns, images, losses
+
+    def reconstruct(self, images: Tensor, patterns: Tensor) -> Tensor:
+        """G_sc's encoded maps (B, 10, H, W), as an acquisition computes them."""
+        return reconstruct_maps(self.nets["svbrdf"], images, patterns, self.rig,
+                                use_spec=self.nets["svbrdf"].use_spec)
 
     def total(self, losses: dict[str, Tensor]) -> dict[str, Tensor]:
         c = self.loss_cfg
@@ -244,7 +247,7 @@ class Stage2(AdaptiveStage):
 
     def forward(self, batch: SVBRDF, seed: int) -> dict[str, Tensor]:
         patterns, images, losses = self.adaptive_captures(batch, seed)
-        pred = reconstruct_maps(self.nets["svbrdf"], images, patterns, self.rig)
+        pred = self.reconstruct(images, patterns)
         losses["reconstruction"] = map_l1(pred, batch.encoded(), self.loss_cfg.map_weights)
         return self.total(losses)
 
@@ -258,8 +261,7 @@ class Finetune(Stage2):
     def forward(self, batch: SVBRDF, seed: int) -> dict[str, Tensor]:
         with torch.no_grad():
             patterns, images, _ = self.adaptive_captures(batch, seed)
-        rec = map_l1(reconstruct_maps(self.nets["svbrdf"], images, patterns, self.rig), batch.encoded(),
-                     self.loss_cfg.map_weights)
+        rec = map_l1(self.reconstruct(images, patterns), batch.encoded(), self.loss_cfg.map_weights)
         return {"loss": self.loss_cfg.reconstruction * rec, "reconstruction": rec}
 
 
@@ -308,6 +310,9 @@ class FixedStage(TrainingStage):
         self.nets["svbrdf"] = SVBRDFPredictor(count, model.svbrdf_width, tuple(model.svbrdf_blocks),
                                               use_spec=model.use_spec)
 
+    def acquisition_settings(self) -> AcquisitionSettings:
+        return AcquisitionSettings(use_spec=self.nets["svbrdf"].use_spec)
+
     def param_groups(self, lr: float) -> list[dict]:
         if not self.model_cfg.learn_patterns:
             return super().param_groups(lr)
@@ -326,7 +331,7 @@ class FixedStage(TrainingStage):
             # the renderer's gradients reach the patterns only when they are learned
             with torch.set_grad_enabled(self.model_cfg.learn_patterns):
                 images = self.capture(batch, pats, seed, g)
-            pred = reconstruct_maps(self.nets["svbrdf"], images, pats, self.rig)
+            pred = reconstruct_maps(self.nets["svbrdf"], images, pats, self.rig, use_spec=self.nets["svbrdf"].use_spec)
         rec = map_l1(pred, batch.encoded(), self.loss_cfg.map_weights)
         return {"loss": self.loss_cfg.reconstruction * rec, "reconstruction": rec}
 

@@ -5,7 +5,8 @@ it/s; ``metrics.csv`` and ``loss.png``; checkpoints every ``train.checkpoint_eve
 SIGINT/SIGTERM (at the next step boundary) and at the end, written atomically; ``--resume``
 continues exactly where the checkpoint left off (same batches, same render seeds, same optimiser
 state, hence the same parameters as an uninterrupted run). At the end the stage's networks are
-exported to ``OUT/networks.pt`` ({name: network record}) for the next stage's ``[pretrained]``.
+exported to ``OUT/networks.pt`` ({name: network record}, plus the acquisition settings under
+``"acquisition"`` for stages whose networks acquire) for the next stage's ``[pretrained]``.
 
 Data and seeds depend only on the global sample index and the step, never on the process: step
 ``k`` uses materials ``k * batch ... (k + 1) * batch - 1`` of the procedural stream, and under
@@ -26,6 +27,8 @@ from pathlib import Path
 import torch
 import torch.distributed as dist
 
+from ..acquisition import SETTINGS_KEY
+from ..data.datasets import MapFolderDataset, ProceduralDataset, StripDataset, collate_svbrdf
 from ..errors import MitsvbrdfError
 from ..nets import network_record
 from ..nets.io import read_network_file
@@ -107,8 +110,6 @@ def _device(name: str) -> torch.device:
 
 
 def make_dataset(cfg: Config):
-    from ..data.datasets import MapFolderDataset, ProceduralDataset, StripDataset
-
     d = cfg.data
     if d.source == "procedural":
         return ProceduralDataset(d.length, d.size, seed=cfg.seed, families=d.families or None)
@@ -262,6 +263,9 @@ class Trainer:
         path = self.out / "networks.pt"
         if self.rank == 0:
             recs = {n: network_record(net) for n, net in self.stage.networks().items()}
+            settings = self.stage.acquisition_settings()
+            if settings is not None:  # how an acquisition must use them (L_pdf source and stride, I^spec)
+                recs[SETTINGS_KEY] = settings.record()
             tmp = path.with_suffix(".tmp")
             torch.save(recs, tmp)
             os.replace(tmp, path)
@@ -296,8 +300,6 @@ class Trainer:
     # -- the loop ---------------------------------------------------------------------------
     def batch(self, step: int):
         """This rank's share of the materials of ``step`` (on the device)."""
-        from ..data.datasets import collate_svbrdf
-
         b = self.cfg.train.batch // self.world
         start = step * self.cfg.train.batch + self.rank * b
         n = len(self.dataset)

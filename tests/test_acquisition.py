@@ -1,0 +1,183 @@
+"""The acquisition layer: the steps around injected networks (tiny stand-ins here), and networks
+files that carry the settings they were trained with."""
+
+from types import SimpleNamespace
+
+import pytest
+import torch
+
+import mitsvbrdf as ms
+from mitsvbrdf.acquisition import (SETTINGS_KEY, AcquisitionSettings, AdaptiveAcquisition, load_adaptive,
+                                   load_baseline, maps_to_svbrdf, predict)
+from mitsvbrdf.errors import MitsvbrdfError
+from mitsvbrdf.nets import NetworkFileError, network_record
+from mitsvbrdf.training import STAGES, RenderSettings
+
+from conftest import textured_material
+
+
+class MeanInitializer(torch.nn.Module):
+    """Encoded maps from image brightness: a flat normal and roughness = 1 - mean brightness."""
+
+    def forward(self, i0):
+        b, _, h, w = i0.shape
+        bright = (i0.mean(1, keepdim=True) / i0.mean().clamp_min(1e-6)).clamp(0, 1)
+        out = torch.full((b, 10, h, w), 0.5)
+        out[:, 2:3] = 1.0
+        out[:, 6:7] = 1 - 0.5 * bright
+        return out
+
+
+class LpdfLighting(torch.nn.Module):
+    """Four patterns: L_pdf itself and three colourings of it (the patterns follow L_pdf)."""
+
+    def forward(self, i0, lpdf):
+        tint = torch.tensor([[1.0, 1.0, 1.0], [1.0, 0.0, 0.0], [0.0, 1.0, 0.0], [0.0, 0.0, 1.0]])
+        return SimpleNamespace(patterns=lpdf[:, None] * tint.view(1, 4, 3, 1, 1))
+
+
+class ImageReconstructor(torch.nn.Module):
+    """Diffuse albedo from the first image; records whether it was given I^spec."""
+
+    def forward(self, images, spec):
+        b, _, _, h, w = images.shape
+        self.saw_spec = spec is not None
+        out = torch.full((b, 10, h, w), 0.5)
+        out[:, 3:6] = (images[:, 0] / images[:, 0].amax((1, 2, 3), keepdim=True)).clamp(0, 1)
+        return out
+
+
+@pytest.fixture()
+def acquisition(rig):
+    return AdaptiveAcquisition(torch.full((3, 32, 32), 0.8), MeanInitializer(), LpdfLighting(),
+                               ImageReconstructor(), rig, AcquisitionSettings(lpdf_stride=4))
+
+
+def test_simulated_acquisition_shows_l0_first_then_the_predicted_patterns(acquisition):
+    acq = acquisition.simulate(textured_material(16), method="reference")
+    assert acq.patterns.shape == (5, 3, 32, 32) and acq.images.shape == (5, 3, 16, 16)
+    assert torch.equal(acq.patterns[0], torch.full((3, 32, 32), 0.8))
+    assert torch.allclose(acq.patterns[1, 0], acq.lpdf[0])
+    assert acq.svbrdf.resolution == (16, 16) and acq.svbrdf.batch_size == 1
+
+
+def test_images_are_the_renders_of_the_shown_patterns(acquisition, rig):
+    m = textured_material(16)
+    acq = acquisition.simulate(m, method="reference")
+    again = ms.render(m, acq.patterns, rig)[0]
+    assert torch.allclose(acq.images, again, rtol=1e-5, atol=1e-7)
+
+
+def test_a_batch_gives_one_acquisition_per_material_with_its_own_patterns(acquisition):
+    m = ms.SVBRDF.cat([textured_material(16, seed=0, roughness=(0.05, 0.1)),
+                       textured_material(16, seed=1, roughness=(0.7, 0.9))])
+    a, b = acquisition.simulate(m, method="reference")
+    assert not torch.allclose(a.patterns[1:], b.patterns[1:])
+
+
+def test_mitsuba_simulation_is_reproducible_for_a_seed(acquisition):
+    m = textured_material(8)
+    a = acquisition.simulate(m, method="mitsuba", spp=2, seed=3)
+    b = acquisition.simulate(m, method="mitsuba", spp=2, seed=3)
+    assert torch.equal(a.images, b.images)
+
+
+def test_uniform_lpdf_ablation_ignores_the_initializer(rig):
+    p = AdaptiveAcquisition(torch.ones(3, 32, 32), MeanInitializer(), LpdfLighting(), ImageReconstructor(), rig,
+                            AcquisitionSettings(lpdf_from="uniform"))
+    acq = p.simulate(textured_material(8), method="reference")
+    assert torch.equal(acq.lpdf, torch.ones(1, 32, 32))
+
+
+def test_network_outputs_become_valid_materials():
+    raw = torch.randn(2, 10, 4, 4) * 3  # anything a network may emit
+    m = maps_to_svbrdf(raw)
+    assert (m.normal[:, 2] > 0).all()
+    assert torch.allclose(m.normal.norm(dim=1), torch.ones(2, 4, 4), atol=1e-5)
+
+
+def test_first_pattern_must_fit_the_lcd(rig):
+    with pytest.raises(ValueError, match=r"\(3, 32, 32\)"):
+        AdaptiveAcquisition(torch.ones(3, 16, 16), MeanInitializer(), LpdfLighting(), ImageReconstructor(), rig)
+
+
+def test_without_use_spec_g_sc_gets_no_separation(rig):
+    rec = ImageReconstructor()
+    p = AdaptiveAcquisition(torch.ones(3, 32, 32), MeanInitializer(), LpdfLighting(), rec, rig,
+                            AcquisitionSettings(use_spec=False))
+    p.simulate(textured_material(8), method="reference")
+    assert rec.saw_spec is False
+
+
+def test_ground_truth_lpdf_needs_the_ground_truth(rig):
+    i0 = torch.rand(1, 3, 8, 8)
+    with pytest.raises(MitsvbrdfError, match="needs the ground-truth material"):
+        predict(MeanInitializer(), LpdfLighting(), i0, rig, AcquisitionSettings(lpdf_from="ground_truth"))
+
+
+@pytest.mark.parametrize("bad", [{"lpdf_from": "oracle"}, {"lpdf_stride": 0}, {"use_spec": "yes"}])
+def test_bad_settings_are_refused(bad):
+    with pytest.raises(MitsvbrdfError):
+        AcquisitionSettings(**bad)
+
+
+# ---- networks files carry their settings ---------------------------------------------------
+
+
+def _stage(rig, name="stage2", **model):
+    torch.manual_seed(0)
+    S = STAGES[name]
+    return S(S.Model(**model), S.Loss(), RenderSettings(), rig)
+
+
+def _save(path, stage, settings="from the stage"):
+    recs = {n: network_record(m) for n, m in stage.networks().items()}
+    if settings == "from the stage":
+        settings = stage.acquisition_settings().record()
+    if settings is not None:
+        recs[SETTINGS_KEY] = settings
+    torch.save(recs, path)
+    return path
+
+
+def test_an_export_is_acquired_with_the_settings_it_was_trained_with(rig, tmp_path):
+    stage = _stage(rig, lighting_width=4, svbrdf_width=4, lpdf_from="uniform", lpdf_stride=8, use_spec=False)
+    acq = load_adaptive(_save(tmp_path / "n.pt", stage), rig)
+    assert acq.settings == AcquisitionSettings("uniform", 8, False)
+
+
+def test_an_export_without_settings_keeps_the_old_defaults(rig, tmp_path):
+    stage = _stage(rig, lighting_width=4, svbrdf_width=4, use_spec=False)
+    acq = load_adaptive(_save(tmp_path / "old.pt", stage, settings=None), rig)
+    assert acq.settings == AcquisitionSettings("initializer", 4, False)  # use_spec as G_sc was built
+
+
+def test_an_explicit_lpdf_source_overrides_the_file(rig, tmp_path):
+    stage = _stage(rig, lighting_width=4, svbrdf_width=4)
+    acq = load_adaptive(_save(tmp_path / "n.pt", stage), rig, lpdf_from="uniform")
+    assert acq.settings.lpdf_from == "uniform" and acq.settings.lpdf_stride == stage.model_cfg.lpdf_stride
+
+
+def test_networks_trained_on_the_true_lpdf_acquire_from_the_initializer(rig, tmp_path):
+    stage = _stage(rig, lighting_width=4, svbrdf_width=4, lpdf_from="ground_truth")
+    assert load_adaptive(_save(tmp_path / "n.pt", stage), rig).settings.lpdf_from == "initializer"
+
+
+def test_settings_that_contradict_the_networks_are_a_clear_error(rig, tmp_path):
+    stage = _stage(rig, lighting_width=4, svbrdf_width=4, use_spec=True)
+    path = _save(tmp_path / "n.pt", stage, settings={"use_spec": False})
+    with pytest.raises(NetworkFileError, match="built with use_spec=True"):
+        load_adaptive(path, rig)
+
+
+def test_unknown_settings_are_a_clear_error(rig, tmp_path):
+    path = _save(tmp_path / "n.pt", _stage(rig, lighting_width=4, svbrdf_width=4), settings={"lpdf_fom": "uniform"})
+    with pytest.raises(NetworkFileError, match=r"unknown acquisition settings \['lpdf_fom'\]"):
+        load_adaptive(path, rig)
+
+
+def test_a_baseline_export_is_a_fixed_pattern_acquisition(rig, tmp_path):
+    stage = _stage(rig, "fixed", patterns="monograd", svbrdf_width=4)
+    acq = load_baseline(_save(tmp_path / "b.pt", stage), rig)
+    assert torch.equal(acq.patterns, stage.nets["patterns"]())
+    assert acq.simulate(textured_material(8), method="reference").images.shape == (5, 3, 8, 8)

@@ -179,3 +179,10 @@ def test_bad_chain_files_are_refused_naming_the_problem(tmp_path, text, match):
     p.write_text(text)
     with pytest.raises(ConfigError, match=match):
         load_chain(p)
+
+
+def test_a_stage_left_without_time_still_trains_one_step(tmp_path):
+    # shares that leave the second stage nothing once the first overruns by its last step
+    chain = load_chain(write_chain(tmp_path, budget="1s", shares=(1.0, 1e-9)))
+    record = run_chain(chain, progress=False)
+    assert record["stages"][1]["steps"] >= 1 and (chain.out / "networks.pt").is_file()

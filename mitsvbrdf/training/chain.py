@@ -15,7 +15,8 @@ one total time budget is split between them by configured shares::
 Budget: when stage k starts, it gets ``share_k / sum(share_k..share_n)`` of the budget not yet
 spent by the stages before it (their own recorded loop time), so time a stage does not use (it
 reached ``train.steps`` first) goes to the later ones. Each stage's ``train.steps`` is an upper
-bound only (a stage's cosine schedule follows its time, see :mod:`.trainer`).
+bound only (a stage's cosine schedule follows its time, see :mod:`.trainer`). A stage always trains
+at least one step, so a chain whose early stages overran its budget still ends with an export.
 
 Resumable at any point: a finished stage (its checkpoint says so) is skipped, an interrupted one
 continues from its checkpoint, so after a crash or SIGTERM the same command picks up where the chain
@@ -38,7 +39,7 @@ from pathlib import Path
 import torch
 
 from .config import ConfigError, load_config, parse_duration
-from .trainer import Trainer, TrainingError
+from .trainer import Trainer
 
 #: ``train.steps`` of a budgeted stage whose config does not cap it: the budget ends it.
 UNCAPPED_STEPS = 10_000_000
@@ -157,9 +158,9 @@ def run_chain(chain: Chain, *, progress: bool = True, overwrite: bool = False, e
         if not capped:
             cfg.train.steps = UNCAPPED_STEPS
         if not state["finished"]:
-            if budget <= 0:
-                raise TrainingError(f"train-chain: no time left for stage {k + 1} ({cfg.stage}); the stages before "
-                                    f"it spent {spent:.0f} s of {chain.time_budget:.0f} s")
+            if budget <= 0:  # the stages before overran by their last step: this one still trains one
+                print(f"train-chain: no time left for stage {k + 1} ({cfg.stage}) after {spent:.0f} s of "
+                      f"{chain.time_budget:.0f} s; it trains one step", file=sys.stderr)
             trainer = Trainer(cfg, resume=(folder / "checkpoint.pt").exists(), progress=progress,
                               stop_after=stop_after)
             trainer.run()

@@ -83,7 +83,7 @@ def _figure(rows: list[tuple[str, dict, torch.Tensor]], path: Path, with_tiles: 
     fig.suptitle("flash at the camera, fitted position and scale; errors in display values (-0.15 blue .. +0.15 red)",
                  fontsize=8)
     fig.tight_layout()
-    fig.savefig(path, dpi=90)
+    fig.savefig(path, dpi=60)
     plt.close(fig)
 
 

@@ -10,7 +10,8 @@ albedo luminance and R / G / B, specular albedo (RGB mean) and its chroma (max -
 roughness, normal slope angle; all on the stored values (the samples' maps as
 :meth:`mitsvbrdf.SVBRDF.load` reads them, the generator's as it makes them). Procedural set:
 materials 0..n-1 of stream seed 0; samples: the 4 strips of ``shared/data/svbrdf_samples``
-(MITSVBRDF_SAMPLES), resized to ``--size`` (area average, normals renormalised) when it is not 256.
+(MITSVBRDF_SAMPLES), resized to ``--size`` (:meth:`SVBRDF.resized`: area average, normals
+renormalised) when it is not 256.
 
 Prints and writes ``data_statistics.md`` / ``.csv`` (the per-material percentile rows) and
 ``data_statistics.png`` (overlaid histograms) into docs/benchmarks/. A sample percentile outside
@@ -27,7 +28,6 @@ import warnings
 from pathlib import Path
 
 import torch
-import torch.nn.functional as F
 
 from mitsvbrdf import SVBRDF
 from mitsvbrdf.data import procedural, stats
@@ -55,16 +55,6 @@ def texel_maps(m: SVBRDF) -> dict[str, torch.Tensor]:
     for c, ch in enumerate("rgb"):
         out[f"kd_{ch}"] = m.diffuse[:, c]
     return {k: out[k] for k in EDGES}
-
-
-def resize(m: SVBRDF, size: int) -> SVBRDF:
-    """Area-average the maps to size x size (normals renormalised)."""
-    if m.resolution[0] == size:
-        return m
-    f = lambda t: F.interpolate(t, size=(size, size), mode="area")  # noqa: E731
-    n = f(m.normal)
-    return SVBRDF(normal=n / n.norm(dim=1, keepdim=True), diffuse=f(m.diffuse), roughness=f(m.roughness),
-                  specular=f(m.specular), name=m.name)
 
 
 def summarise(m: SVBRDF) -> tuple[dict[str, list[float]], dict[str, torch.Tensor], dict[str, torch.Tensor]]:
@@ -131,7 +121,7 @@ def main() -> None:
     for f in strips:
         with warnings.catch_warnings():
             warnings.simplefilter("ignore")  # off-unit file normals: cleaned by the loader
-            samples.append(resize(SVBRDF.load(f), args.size))
+            samples.append(SVBRDF.load(f).resized(args.size))
     names = [s.name for s in samples]
     t0 = time.perf_counter()
     p_hist, p_pct, p_plot = procedural_set(args.n, args.size)

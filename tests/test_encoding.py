@@ -10,7 +10,7 @@ import torch
 
 import mitsvbrdf as ms
 from mitsvbrdf.data import encoding
-from mitsvbrdf.relight import tonemap
+from mitsvbrdf.viewing import tonemap
 
 
 def _material(size: int = 24) -> ms.SVBRDF:

@@ -11,7 +11,7 @@ flash is a point light at the camera's centre of projection ``p = (x, y, z)``, z
 fall-off: ``L_o = f(w_i, w_o) (n . w_i)^+ / d^2`` with ``w_i = w_o`` towards ``p`` (the project's
 BRDF, :func:`mitsvbrdf.brdf.brdf`). The dataset's exact flash position and exposure vary per image,
 so :func:`fit_flash` fits ``p`` and one global scale per material and hypothesis, in display values
-(scale, clip to [0, 1], sRGB curve: :func:`mitsvbrdf.relight.tonemap`), on the tile's unsaturated
+(scale, clip to [0, 1], sRGB curve: :func:`mitsvbrdf.viewing.tonemap`), on the tile's unsaturated
 pixels; what is left, the *shape* of the image, decides between the hypotheses.
 
 Hypotheses (:data:`HYPOTHESES`): ``"linear"`` renders the stored kd / ks as they are (the
@@ -29,7 +29,7 @@ import torch.nn.functional as F
 from torch import Tensor
 
 from ..brdf import brdf
-from ..relight import tonemap
+from ..viewing import tonemap
 from ..svbrdf import SVBRDF, srgb_to_linear
 
 HYPOTHESES = ("linear", "srgb", "srgb_kd")

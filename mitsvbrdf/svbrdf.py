@@ -13,8 +13,22 @@ normal map convention, so a normal tilted towards the top of the image has n_y >
 
 The *encoded* form (files, RMSE metrics, networks) is ``(B, 10, H, W)``: channels 0-2 the normal as
 (n + 1) / 2, 3-5 diffuse, 6 roughness, 7-9 specular, the last three as stored values in [0, 1].
-Albedos are kept as stored (the Deschaintre et al. 2018 dataset convention);
-``SVBRDF.load(..., srgb_albedo=True)`` decodes sRGB-stored albedos to linear instead.
+
+Albedo encoding, the one convention of loader, generator, renderers and metrics: **stored albedo
+values are the linear kd / ks.** :meth:`SVBRDF.load` keeps them as stored (8-bit code / 255, no
+decoding), the renderers and :mod:`mitsvbrdf.relight` use them as linear albedos, the procedural
+generator (:mod:`mitsvbrdf.data.procedural`) draws them in that same sense, and the metrics
+(:func:`mitsvbrdf.metrics.map_rmse` on :meth:`SVBRDF.encoded`) compare them as stored, as in the
+paper. This is the Deschaintre et al. 2018 renderer's reading (it renders the stored values), and
+the one under which the dataset's dielectric specular, stored as 11/255 = 0.043, is the physical
+F0 ~ 0.04 (sRGB-decoded it would be 0.003). The datasets' own flash renders do not overturn it:
+fitting them under linear, sRGB-decoded and kd-only-decoded albedos
+(``benchmarks/albedo_encoding.py``, docs/benchmarks/albedo_encoding.md) the 4 sample materials
+split (two fit sRGB-decoded albedos better, one linear, one neither) and kd-only decoding fits
+worst. ``SVBRDF.load(..., srgb_albedo=True)`` is for a dataset known to store sRGB-encoded albedos:
+it decodes them on load, so that set's maps, encoded form and metrics are then on linear values,
+not its stored ones. :mod:`mitsvbrdf.data.encoding` checks a set of 5-tile strips against its
+render tiles.
 
 File formats (:meth:`SVBRDF.load` / :meth:`SVBRDF.save`):
 
@@ -404,8 +418,8 @@ class SVBRDF:
                 see the module docstring for each layout.
             strict: raise instead of warning about bad file normals or unequal roughness channels.
             srgb_albedo: decode diffuse and specular from sRGB to linear (for every format). The
-                default keeps stored values as they are, the Deschaintre 2018 convention. The render
-                tile is never decoded.
+                default keeps stored values as they are: they are the linear albedos (the module
+                docstring's convention). The render tile is never decoded.
 
         Returns:
             An SVBRDF with B = 1, float32 on the CPU, ``name`` = the file or folder stem.

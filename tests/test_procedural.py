@@ -9,6 +9,7 @@ import pytest
 import torch
 
 import mitsvbrdf as ms
+from conftest import SAMPLES, needs_samples
 from mitsvbrdf.data import procedural, stats
 from mitsvbrdf.data.procedural import FAMILIES, family_of, generate, height_to_normal, material
 from mitsvbrdf.errors import MaterialError
@@ -168,6 +169,38 @@ def test_every_family_spans_its_own_ranges(coverage_set):
         assert summary["slope_deg"][idx, 2].max() > 1.0, f  # every family has relief
     metal = {f for f in FAMILIES if summary["ks"][[i for i, g in enumerate(fams) if g == f], 1].max() > 0.4}
     assert {"brushed_metal", "hammered_metal"} <= metal
+
+
+@needs_samples
+def test_generated_set_covers_every_percentile_of_the_sample_materials(coverage_set):
+    """Each sample material's 1st / 50th / 99th texel percentile of each quantity lies within the
+    range of that percentile over the generated set, both at 48 px (the samples area-averaged, as in
+    benchmarks/data_statistics.py --size 48). Tolerances: albedos and roughness 1/255 (the samples'
+    8-bit storage), slope 1 degree (texels of a 48 px map average 5 x 5 sample texels' normals)."""
+    import warnings
+
+    q = torch.tensor([0.01, 0.5, 0.99])
+
+    def percentiles(m: ms.SVBRDF) -> dict[str, torch.Tensor]:
+        v = stats.texel_maps(m)
+        v.update({f"kd_{c}": m.diffuse[:, i] for i, c in enumerate("rgb")})
+        return {k: torch.quantile(t.reshape(t.shape[0], -1).float(), q, dim=1).T for k, t in v.items()}
+
+    gen = percentiles(coverage_set)
+    lo = {k: v.min(0).values for k, v in gen.items()}
+    hi = {k: v.max(0).values for k, v in gen.items()}
+    misses = []
+    for f in sorted(SAMPLES.glob("*_svbrdf.png")):
+        with warnings.catch_warnings():
+            warnings.simplefilter("ignore")  # the samples' off-unit normals are cleaned, with a warning
+            m = ms.SVBRDF.load(f)
+        for k, v in percentiles(m.resized(48)).items():
+            tol = 1.0 if k == "slope_deg" else 1 / 255
+            for j in range(3):
+                if not lo[k][j] - tol <= v[0, j] <= hi[k][j] + tol:
+                    misses.append(f"{f.stem} {k} p{int(100 * q[j])}={float(v[0, j]):.3g} not in "
+                                  f"[{float(lo[k][j]):.3g}, {float(hi[k][j]):.3g}]")
+    assert not misses, misses
 
 
 # ---- the preview command -------------------------------------------------------------------------

@@ -195,6 +195,22 @@ def test_palette_strip_loads_with_the_stored_colours(tmp_path):
     _assert_maps_close(back, m, atol=1 / 255)
 
 
+def test_strip_albedos_load_as_stored_and_are_what_renderers_and_metrics_use(tmp_path):
+    """The one albedo convention (module docstring): stored 8-bit codes / 255 are the linear kd / ks
+    (no decoding on load), and the encoded form the metrics compare holds them unchanged."""
+    from mitsvbrdf.metrics import map_rmse
+
+    codes = {"diffuse": (11, 128, 250), "specular": (11, 11, 11)}
+    m = SVBRDF.constant(diffuse=[c / 255 for c in codes["diffuse"]], specular=[c / 255 for c in codes["specular"]],
+                        roughness=0.5, size=4)
+    imageio.write_png(tmp_path / "s.png", _strip(m))
+    back = SVBRDF.load(tmp_path / "s.png")
+    for k, c in codes.items():
+        assert torch.equal(getattr(back, k)[0, :, 0, 0], torch.tensor(c, dtype=torch.float32) / 255), k
+    torch.testing.assert_close(back.encoded()[:, 3:6], back.diffuse, atol=0, rtol=0)
+    assert float(map_rmse(back, m)["diffuse"][0]) < 1e-6
+
+
 def test_srgb_albedo_decodes_diffuse_and_specular_only(tmp_path):
     m = SVBRDF.constant(diffuse=0.5, specular=0.2, roughness=0.5, size=4)
     m.save(tmp_path / "s.exr")

@@ -7,6 +7,7 @@ Modules:
     datasets    torch Datasets: the procedural stream, Deschaintre-format strips, folders of maps
     preview     contact sheets of materials (maps + a reference rendering) for looking at them
     stats       coverage statistics (roughness, albedos, slopes) of a set of materials
+    encoding    which albedo encoding a dataset stores, told by its strips' render tiles
 """
 
 from .procedural import FAMILIES, family_of, generate, generate_indices, height_to_normal, material

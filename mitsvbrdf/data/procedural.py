@@ -33,10 +33,15 @@ fabric           woven threads (plain, twill, basket) with fibre noise, two thre
 mixture          noise mixtures: rust on metal, veined marble, porous concrete, two-layer plaster
 ===============  ================================================================================
 
-Maps follow :class:`mitsvbrdf.SVBRDF` (normal unit, kd/ks/roughness in [0, 1]). Roughness lies in
-[0.02, 1]; ks spans dielectrics (~0.02-0.08 grey) to coloured metals (up to ~1); kd spans near-black
-(~0.01) to bright (~0.9). Normals come from a height field (sample units, side = 1) by
-:func:`height_to_normal`; the paint family's metallic flakes add a per-flake slope field on top.
+Maps follow :class:`mitsvbrdf.SVBRDF` (normal unit, kd/ks/roughness in [0, 1], albedos in the
+encoding :mod:`mitsvbrdf.svbrdf` documents, the one its strips are loaded in). Roughness lies in
+[0.02, 1]; ks spans dielectrics (~0.02-0.08 grey) to coloured metals (up to ~1); kd spans black
+(pure metals, kd = 0) to bright (~0.9). Widened to cover the dataset samples
+(docs/benchmarks/data_statistics.md): a quarter of the materials get a steep relief
+(:data:`STEEP_FRACTION`), a fifth saturated colours whose channels reach 0 or 1
+(:data:`SATURATED_FRACTION`), a third of metal albedos kd = 0 (:data:`METAL_BLACK_KD`). Normals
+come from a height field (sample units, side = 1) by :func:`height_to_normal`; the paint family's
+metallic flakes add a per-flake slope field on top.
 """
 
 from __future__ import annotations
@@ -55,6 +60,13 @@ from .noise import (cellular, col, grid, lerp, lookup, lookup_flat, rotate, smoo
                     spectral_noise)
 
 ROUGHNESS_MIN = 0.02
+#: Fraction of metal albedos drawn with kd = 0 exactly.
+METAL_BLACK_KD = 0.35
+#: Fraction of materials with a steep relief: the relief multiplier times logu(*STEEP_RELIEF).
+STEEP_FRACTION, STEEP_RELIEF = 0.25, (1.5, 4.0)
+#: Fraction of materials with saturated colours: kd and ks pushed away from their luminance by a
+#: factor u(*SATURATION), then clamped (so channels reach 0 or 1, as in saturated artist maps).
+SATURATED_FRACTION, SATURATION = 0.2, (1.5, 3.0)
 #: Highest spectral frequency drawn for detail fields (cycles per sample side).
 F_DETAIL = 128
 #: Highest spectral frequency drawn for large-scale fields.
@@ -156,6 +168,8 @@ def _dielectric_ks(d: Draw, lo: float = 0.02, hi: float = 0.08) -> tuple[float, 
 
 
 def _metal_kd(d: Draw) -> tuple[float, float, float]:
+    if d.p(METAL_BLACK_KD):  # pure metal: no diffuse at all (as in the dataset's metals)
+        return (0.0, 0.0, 0.0)
     v = d.logu(0.003, 0.05)
     return tuple(v * d.u(0.7, 1.0) for _ in range(3))
 
@@ -822,6 +836,9 @@ def sample_parameters(index: int, seed: int = 0, families: Sequence[str] | None 
     d = Draw(material_seed(seed, index))
     variant, params = _REGISTRY[fam].sample(d)
     params["relief"] = d.logu(0.6, 1.6)
+    if d.p(STEEP_FRACTION):
+        params["relief"] *= d.logu(*STEEP_RELIEF)
+    params["saturation"] = d.u(*SATURATION) if d.p(SATURATED_FRACTION) else 1.0
     return fam, variant, params
 
 
@@ -912,21 +929,31 @@ def _build_all(indices: list[int], size: int, seed: int, families, dev: torch.de
                 pos = torch.tensor([m[0] for m in part], device=dev)
                 p = _collate_params([m[1] for m in part], dev)
                 lay = _REGISTRY[fam].build(p, variant, size)
-                maps = _finish(lay, p["relief"] * bump, size)
+                maps = _finish(lay, p["relief"] * bump, size, p["saturation"])
                 for k, v in maps.items():
                     out[k].index_copy_(0, pos, v)
     return SVBRDF(**out, name=name, check=False)
 
 
-def _finish(lay: Layers, relief: Tensor, size: int) -> dict[str, Tensor]:
-    """Layers -> clamped SVBRDF maps (normals from height x relief)."""
+def _saturate(c: Tensor, saturation: Tensor) -> Tensor:
+    """(B, 3, H, W) colours pushed away from their Rec. 709 luminance by (B,) factors (1: unchanged)."""
+    lum = 0.2126 * c[:, 0:1] + 0.7152 * c[:, 1:2] + 0.0722 * c[:, 2:3]
+    return lum + (c - lum) * saturation.view(-1, 1, 1, 1)
+
+
+def _finish(lay: Layers, relief: Tensor, size: int, saturation: Tensor | None = None) -> dict[str, Tensor]:
+    """Layers -> clamped SVBRDF maps (normals from height x relief, colours saturated by
+    ``saturation`` (B,) when given and not all 1)."""
     B = relief.shape[0]
     shape = (B, 3, size, size)
     slope = None if lay.slope is None else lay.slope * relief.view(-1, 1, 1, 1)
     normal = height_to_normal(lay.height * col(relief), slope)
     rough = lay.rough.expand(B, size, size).unsqueeze(1)
-    return {"normal": normal, "diffuse": lay.kd.expand(shape).clamp(0.0, 1.0),
-            "roughness": rough.clamp(ROUGHNESS_MIN, 1.0), "specular": lay.ks.expand(shape).clamp(0.0, 1.0)}
+    kd, ks = lay.kd.expand(shape), lay.ks.expand(shape)
+    if saturation is not None and bool((saturation != 1).any()):
+        kd, ks = _saturate(kd, saturation), _saturate(ks, saturation)
+    return {"normal": normal, "diffuse": kd.clamp(0.0, 1.0),
+            "roughness": rough.clamp(ROUGHNESS_MIN, 1.0), "specular": ks.clamp(0.0, 1.0)}
 
 
 def material(index: int, size: int = 256, seed: int = 0, families: Sequence[str] | None = None,

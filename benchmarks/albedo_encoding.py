@@ -17,7 +17,6 @@ looking at locally) into docs/benchmarks/.
 from __future__ import annotations
 
 import argparse
-import os
 import re
 import time
 import warnings
@@ -29,14 +28,13 @@ import torch
 from mitsvbrdf import SVBRDF
 from mitsvbrdf.data import encoding
 from mitsvbrdf.imageio import read_image
-from report import write_report
+from report import SAMPLES, write_report
 
 ROOT = Path(__file__).resolve().parent.parent
 H = encoding.HYPOTHESES
 #: A material decides only when the runner-up's RMSE exceeds the best one's by this fraction: about
 #: 5x the spread of the best RMSE between fits from different starting sets (~2%).
 MARGIN = 0.10
-SAMPLES = Path(os.environ.get("MITSVBRDF_SAMPLES", ROOT.parent / "shared" / "data" / "svbrdf_samples"))
 
 
 def _pairs(maps: Path, renders: Path | None) -> list[tuple[str, SVBRDF, torch.Tensor]]:

@@ -22,7 +22,6 @@ material that looks like the sample in that respect.
 from __future__ import annotations
 
 import argparse
-import os
 import time
 import warnings
 from pathlib import Path
@@ -31,10 +30,9 @@ import torch
 
 from mitsvbrdf import SVBRDF
 from mitsvbrdf.data import procedural, stats
-from report import write_report
+from report import SAMPLES, write_report
 
 ROOT = Path(__file__).resolve().parent.parent
-SAMPLES = Path(os.environ.get("MITSVBRDF_SAMPLES", ROOT.parent / "shared" / "data" / "svbrdf_samples"))
 
 ALBEDO = [0.0, 0.005, 0.01, 0.03, 0.1, 0.2, 0.4, 0.6, 0.8, 1.0]
 EDGES = {

@@ -3,7 +3,13 @@
 from __future__ import annotations
 
 import csv
+import os
 from pathlib import Path
+
+#: The 4 sample materials (Deschaintre-format strips): $MITSVBRDF_SAMPLES, else the checkout's
+#: sibling shared/data/svbrdf_samples (as tests/conftest.py finds them).
+SAMPLES = Path(os.environ.get("MITSVBRDF_SAMPLES",
+                              Path(__file__).resolve().parents[2] / "shared" / "data" / "svbrdf_samples"))
 
 
 def write_report(out_dir: Path, stem: str, title: str, script: str, text: str, rows: list[dict]) -> None:

@@ -31,8 +31,9 @@ import time
 from dataclasses import dataclass, field
 from pathlib import Path
 
+from report import SAMPLES
+
 ROOT = Path(__file__).resolve().parent.parent
-SAMPLES = ROOT.parent / "shared" / "data" / "svbrdf_samples"
 
 #: configs (train/<name><suffix>.toml) in dependency order
 RUNS = ["init", "stage1", "stage2-nospec", "finetune-nospec",
@@ -207,7 +208,7 @@ def main() -> None:
         table = (out / label / "summary.md").read_text().strip()
         count = len({r["material"] for r in rows})
         what = f"{count} held-out procedural materials (seeds from 1 000 000)" if label == "procedural" else \
-            f"the {count} materials of ../shared/data/svbrdf_samples"
+            f"the {count} sample materials ({SAMPLES.name}, MITSVBRDF_SAMPLES)"
         text += [f"## {label}: {what}\n", table + "\n", *verdict(rows), "",
                  f"Figures: `table3-{args.scale}/{label}/index.html`.\n"]
     (Path(args.out) / f"table3-{args.scale}{tag}.md").write_text("\n".join(text))

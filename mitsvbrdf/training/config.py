@@ -16,6 +16,15 @@ Layout (every key optional except ``stage``; defaults below)::
                the elapsed fraction of it, and steps is only an upper bound)
     [pretrained]  networks = "runs/init/networks.pt"  (an earlier stage's export)
 
+Shared bases: ``extends = "base/small.toml"`` (or a list of files, applied in order) at the top
+level reads those configs first, relative to the including file; a base may extend others in turn.
+Tables merge key by key and the including file wins over its bases (a later base over an earlier
+one); any other value, a list included, is replaced whole. The merged table is what is validated,
+what ``--set`` overrides apply to and what a run records (:func:`config_table`), so a run's
+``config.json`` holds every value and reproduces it without the bases. A missing base, a cycle
+or a file that is not TOML is refused naming the chain of files: ``a.toml -> base/b.toml: no
+such config file``.
+
 Procedural materials are drawn by global index from the generator seeded with ``seed``; the
 evaluation's held-out set uses seeds >= 1_000_000 (:data:`TEST_SEED_BASE`), never used here.
 Errors name the offending key path: ``train.stpes: unknown key (did you mean 'steps'?)``.
@@ -27,6 +36,7 @@ import copy
 import dataclasses
 import difflib
 import math
+import os
 import tomllib
 import typing
 from dataclasses import dataclass, field
@@ -177,24 +187,20 @@ def parse_override(text: str) -> tuple[list[str], Any]:
 
 def load_config(path: str | Path | None = None, overrides: list[str] | None = None,
                 table: dict | None = None) -> Config:
-    """Read and validate a config file (or a ready ``table``), applying ``overrides``."""
+    """Read and validate a config file (its ``extends`` resolved, :func:`read_table`) or a ready
+    ``table`` (which cannot extend), then apply ``overrides``."""
     from .stages import STAGES
 
-    if table is None:
-        p = Path(path)
-        if not p.exists():
-            raise ConfigError(f"{p}: no such config file")
-        try:
-            table = tomllib.loads(p.read_text())
-        except tomllib.TOMLDecodeError as e:
-            raise ConfigError(f"{p}: not valid TOML ({e})") from e
-    table = copy.deepcopy(table)
+    table = read_table(path) if table is None else copy.deepcopy(table)
     for o in overrides or []:
         keys, value = parse_override(o)
         node = table
         for k in keys[:-1]:
             node = node.setdefault(k, {})
         node[keys[-1]] = value
+    if "extends" in table:  # bases are relative to a file: a ready table or an override has none
+        raise ConfigError("extends: only a config file can extend others (its bases are relative to it), "
+                          "not a ready table or a --set")
     stage = table.get("stage")
     if stage not in STAGES:
         raise ConfigError(f"stage: must be one of {', '.join(STAGES)}, got {stage!r}")
@@ -204,6 +210,47 @@ def load_config(path: str | Path | None = None, overrides: list[str] | None = No
     cfg.loss = build(STAGES[stage].Loss, loss, "loss")
     _check_values(cfg)
     return cfg
+
+
+def read_table(path: str | Path) -> dict:
+    """The table of config file ``path`` with its ``extends`` resolved (module docstring): the bases'
+    tables merged in order, then the file's own over them; no ``extends`` key is left."""
+    return _read_extending(Path(path), ())
+
+
+def _read_extending(path: Path, including: tuple[Path, ...]) -> dict:
+    trail = " -> ".join(str(p) for p in (*including, path))
+    if path.resolve() in {p.resolve() for p in including}:
+        raise ConfigError(f"{trail}: extends cycle")
+    if not path.exists():
+        raise ConfigError(f"{trail}: no such config file")
+    try:
+        table = tomllib.loads(path.read_text())
+    except (tomllib.TOMLDecodeError, UnicodeDecodeError) as e:
+        raise ConfigError(f"{trail}: not valid TOML ({e})") from None
+    except OSError as e:
+        raise ConfigError(f"{trail}: cannot be read ({e.strerror or e})") from None
+    bases = table.pop("extends", [])
+    if isinstance(bases, str):
+        bases = [bases]
+    if not isinstance(bases, list) or not all(isinstance(b, str) for b in bases):
+        raise ConfigError(f"{trail}: extends: expected a file name or a list of file names, got {bases!r}")
+    merged: dict = {}
+    for base in bases:
+        base_path = Path(os.path.normpath(path.parent / base))
+        merged = _merge(merged, _read_extending(base_path, (*including, path)))
+    return _merge(merged, table)
+
+
+def _merge(base: dict, over: dict) -> dict:
+    """``over`` on ``base``: tables merge key by key, any other value (a list too) replaces."""
+    merged = _deepcopy(base)
+    for key, value in over.items():
+        if isinstance(value, dict) and isinstance(merged.get(key), dict):
+            merged[key] = _merge(merged[key], value)
+        else:
+            merged[key] = _deepcopy(value)
+    return merged
 
 
 def _check_values(cfg: Config) -> None:

@@ -1,0 +1,153 @@
+"""Training configs that extend shared bases (``extends``), and the shipped train/ built on them."""
+
+import shutil
+from pathlib import Path
+
+import pytest
+
+from mitsvbrdf.training import ConfigError, load_config
+from mitsvbrdf.training.config import config_table, read_table
+
+ROOT = Path(__file__).resolve().parents[1]
+BASELINES = ("monograd", "colorgrad", "picked", "pca", "optimized", "lpl", "flash")
+ADAPTIVE = ("", "-nospec", "-diffinit")
+
+
+def write(folder: Path, name: str, text: str) -> Path:
+    path = folder / name
+    path.parent.mkdir(parents=True, exist_ok=True)
+    path.write_text(text)
+    return path
+
+
+# ---- extends -------------------------------------------------------------------------------
+
+
+def test_the_including_file_wins_over_its_base(tmp_path):
+    write(tmp_path, "base.toml", 'stage = "init"\n[train]\nsteps = 10\n')
+    cfg = load_config(write(tmp_path, "c.toml", 'extends = "base.toml"\n[train]\nsteps = 20\n'))
+    assert cfg.train.steps == 20
+
+
+def test_tables_merge_key_by_key(tmp_path):
+    write(tmp_path, "base.toml", 'stage = "init"\n[train]\nsteps = 10\nbatch = 3\n')
+    cfg = load_config(write(tmp_path, "c.toml", 'extends = "base.toml"\n[train]\nsteps = 20\n'))
+    assert (cfg.train.steps, cfg.train.batch) == (20, 3)
+
+
+def test_a_list_value_is_replaced_not_merged(tmp_path):
+    write(tmp_path, "base.toml", 'stage = "init"\n[data]\nfamilies = ["wood", "metal"]\n')
+    cfg = load_config(write(tmp_path, "c.toml", 'extends = "base.toml"\n[data]\nfamilies = ["fabric"]\n'))
+    assert cfg.data.families == ["fabric"]
+
+
+def test_a_list_of_bases_applies_in_order_the_later_winning(tmp_path):
+    write(tmp_path, "a.toml", 'stage = "init"\nseed = 1\n[train]\nsteps = 10\n')
+    write(tmp_path, "b.toml", "seed = 2\n")
+    cfg = load_config(write(tmp_path, "c.toml", 'extends = ["a.toml", "b.toml"]\n'))
+    assert (cfg.seed, cfg.train.steps) == (2, 10)
+
+
+def test_a_base_may_extend_another_relative_to_itself(tmp_path):
+    write(tmp_path, "base/common.toml", 'stage = "init"\n[train]\nbatch = 3\n')
+    write(tmp_path, "base/init.toml", 'extends = "common.toml"\n[train]\nsteps = 10\n')
+    cfg = load_config(write(tmp_path, "c.toml", 'extends = "base/init.toml"\nseed = 5\n'))
+    assert (cfg.train.batch, cfg.train.steps, cfg.seed) == (3, 10, 5)
+
+
+def test_a_base_reached_twice_is_not_a_cycle(tmp_path):
+    write(tmp_path, "common.toml", 'stage = "init"\n')
+    write(tmp_path, "a.toml", 'extends = "common.toml"\nseed = 1\n')
+    write(tmp_path, "b.toml", 'extends = "common.toml"\n[train]\nsteps = 10\n')
+    cfg = load_config(write(tmp_path, "c.toml", 'extends = ["a.toml", "b.toml"]\n'))
+    assert (cfg.seed, cfg.train.steps) == (1, 10)
+
+
+def test_overrides_apply_to_the_merged_table(tmp_path):
+    write(tmp_path, "base.toml", 'stage = "init"\n[train]\nsteps = 10\n')
+    cfg = load_config(write(tmp_path, "c.toml", 'extends = "base.toml"\n'), ["train.steps=7"])
+    assert cfg.train.steps == 7
+
+
+def test_the_recorded_config_holds_the_merged_values_and_reproduces_the_config(tmp_path):
+    write(tmp_path, "base.toml", 'stage = "stage2"\n[model]\nsvbrdf_width = 8\n[train]\nsteps = 10\n')
+    cfg = load_config(write(tmp_path, "c.toml", 'extends = "base.toml"\n[model]\nuse_spec = false\n'))
+    recorded = config_table(cfg)
+    assert "extends" not in recorded
+    assert load_config(table=recorded) == cfg
+
+
+def test_read_table_leaves_no_extends_key(tmp_path):
+    write(tmp_path, "base.toml", 'stage = "init"\n')
+    assert read_table(write(tmp_path, "c.toml", 'extends = "base.toml"\nseed = 1\n')) == {"stage": "init", "seed": 1}
+
+
+def test_a_missing_base_is_refused_in_one_line_naming_the_chain_of_files(tmp_path):
+    write(tmp_path, "base/mid.toml", 'extends = "gone.toml"\n')
+    c = write(tmp_path, "c.toml", 'extends = "base/mid.toml"\n')
+    with pytest.raises(ConfigError) as e:
+        load_config(c)
+    assert str(e.value) == f"{c} -> {tmp_path / 'base/mid.toml'} -> {tmp_path / 'base/gone.toml'}: no such config file"
+
+
+def test_a_cycle_of_extends_is_refused_in_one_line_naming_the_cycle(tmp_path):
+    a = write(tmp_path, "a.toml", 'stage = "init"\nextends = "b.toml"\n')
+    write(tmp_path, "b.toml", 'extends = "a.toml"\n')
+    with pytest.raises(ConfigError) as e:
+        load_config(a)
+    assert str(e.value) == f"{a} -> {tmp_path / 'b.toml'} -> {a}: extends cycle"
+
+
+def test_a_file_extending_itself_is_a_cycle(tmp_path):
+    a = write(tmp_path, "a.toml", 'stage = "init"\nextends = "a.toml"\n')
+    with pytest.raises(ConfigError, match="extends cycle"):
+        load_config(a)
+
+
+def test_a_base_that_is_not_toml_is_named_with_the_chain(tmp_path):
+    write(tmp_path, "base.toml", "stage = \n")
+    c = write(tmp_path, "c.toml", 'extends = "base.toml"\n')
+    with pytest.raises(ConfigError) as e:
+        load_config(c)
+    assert str(e.value).startswith(f"{c} -> {tmp_path / 'base.toml'}: not valid TOML (")
+    assert "\n" not in str(e.value)
+
+
+@pytest.mark.parametrize("value", ["3", '[1, "a.toml"]', '{ file = "a.toml" }'])
+def test_extends_that_is_not_file_names_is_refused(tmp_path, value):
+    c = write(tmp_path, "c.toml", f'stage = "init"\nextends = {value}\n')
+    with pytest.raises(ConfigError, match=r"c\.toml: extends: expected a file name or a list of file names"):
+        load_config(c)
+
+
+def test_a_ready_table_cannot_extend():
+    with pytest.raises(ConfigError, match="extends: only a config file can extend"):
+        load_config(table={"stage": "init", "extends": "base.toml"})
+
+
+def test_an_override_cannot_extend(tmp_path):
+    c = write(tmp_path, "c.toml", 'stage = "init"\n')
+    with pytest.raises(ConfigError, match="extends: only a config file can extend"):
+        load_config(c, ['extends="base.toml"'])
+
+
+# ---- the shipped train/: one G_sc budget per scale ------------------------------------------
+
+
+@pytest.mark.parametrize("suffix, scale", [("-small", "small"), ("", "full")])
+def test_changing_the_budget_in_the_bases_changes_every_baseline_and_adaptive_chain_alike(tmp_path, suffix, scale):
+    train = tmp_path / "train"
+    shutil.copytree(ROOT / "train", train)
+    base = load_config(train / "base" / f"fixed-{scale}.toml").train.steps
+    stage2 = load_config(train / "base" / f"stage2-{scale}.toml").train.steps
+    # a budget larger by 1000: all of it to the fine-tuning, so stage 2 stays as it is
+    for name, new in ((f"fixed-{scale}.toml", base + 1000), (f"finetune-{scale}.toml", base + 1000 - stage2)):
+        path = train / "base" / name
+        text = path.read_text()
+        old = f"steps = {load_config(path).train.steps}\n"
+        assert text.count(old) == 1, name
+        path.write_text(text.replace(old, f"steps = {new}\n"))
+    cfg = lambda name: load_config(train / f"{name}{suffix}.toml")  # noqa: E731
+    budgets = {f"fixed-{b}": cfg(f"fixed-{b}").train.steps for b in BASELINES}
+    budgets |= {f"adaptive{a}": cfg(f"stage2{a}").train.steps + cfg(f"finetune{a}").train.steps for a in ADAPTIVE}
+    assert budgets == dict.fromkeys(budgets, base + 1000)

@@ -254,7 +254,7 @@ def build_parser() -> argparse.ArgumentParser:
     p = argparse.ArgumentParser(prog="mitsvbrdf", description=__doc__.split("\n")[0])
     sub = p.add_subparsers(dest="command", required=True)
     s = sub.add_parser("simulate", help="render a simulated capture through a scene file")
-    s.add_argument("scene", help="Mitsuba scene file of the rig, e.g. scenes/lcd_rig.xml")
+    s.add_argument("scene", help="Mitsuba scene file of the rig, e.g. mitsvbrdf/scenes/lcd_rig.xml")
     s.add_argument("--material", required=True, help="SVBRDF: strip PNG, folder of maps, or EXR")
     s.add_argument("--patterns", default="monograd",
                    help="pattern family (uniform, monograd, colorgrad, step_edges, random) or a "
@@ -284,7 +284,7 @@ def build_parser() -> argparse.ArgumentParser:
     m.add_argument("--columns", type=int, default=2, help="materials side by side (default 2)")
     m.add_argument("--render-size", type=int, default=64,
                    help="resolution of the reference render (default 64; 0 = no render)")
-    m.add_argument("--scene", default=None, help="rig scene file (default scenes/lcd_rig.xml)")
+    m.add_argument("--scene", default=None, help="rig scene file (default: the package's default rig)")
     m.add_argument("--pattern", default="uniform", help="pattern family or file; its first pattern is used")
     m.add_argument("--quiet", action="store_true", help="no progress bar")
     m.set_defaults(func=cmd_materials_preview)
@@ -326,7 +326,7 @@ def build_parser() -> argparse.ArgumentParser:
     d.add_argument("--out", default="out/demo", help="output folder (default out/demo)")
     d.add_argument("--material", default="", help="material to acquire (default: the bundled example)")
     d.add_argument("--networks", default="", help="networks.pt of stage2/finetune (default: the shipped weights)")
-    d.add_argument("--scene", default=None, help="rig scene file (default scenes/lcd_rig.xml)")
+    d.add_argument("--scene", default=None, help="rig scene file (default: the package's default rig)")
     d.add_argument("--resolution", type=int, default=256, help="material resolution (default 256)")
     d.add_argument("--spp", type=int, default=64, help="Mitsuba samples per texel (default 64)")
     d.add_argument("--seed", type=int, default=0)

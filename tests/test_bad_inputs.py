@@ -16,11 +16,13 @@ import torch
 import mitsvbrdf as ms
 from mitsvbrdf import patterns as pt
 from mitsvbrdf.cli import main
+from mitsvbrdf.demo import DEFAULT_MATERIAL
 from mitsvbrdf.errors import ImageError, MaterialError, MitsvbrdfError, PatternError
+from mitsvbrdf.rig import DEFAULT_SCENE
 
 ROOT = Path(__file__).resolve().parents[1]
-SCENE = str(ROOT / "scenes" / "lcd_rig.xml")
-MATERIAL = str(ROOT / "examples" / "materials" / "artificial_0.png")
+SCENE = str(DEFAULT_SCENE)
+MATERIAL = str(DEFAULT_MATERIAL)
 NETWORKS = str(ROOT / "mitsvbrdf" / "weights" / "networks.pt")
 
 

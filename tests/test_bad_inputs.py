@@ -128,6 +128,8 @@ CASES = [
      None),
     ("materials-preview-out-is-a-folder", ["materials", "preview", "--n", "1", "--out", "cal.xml", "--quiet"],
      "is a folder", _a_folder),
+    ("scene-out-is-a-folder", ["scene", "--out", "cal.xml"], "is a folder", _a_folder),
+    ("scene-out-under-a-file", ["scene", "--out", "afile/rig.xml"], "which is a file", _a_file),
     ("capture-exposures-words", capture("--exposures", "abc"), "--exposures", None),
     ("capture-exposures-not-positive", capture("--exposures", "0,-1"), "--exposures", None),
     ("capture-gain-0", capture("--gain", "0"), "--gain", None),

@@ -1,4 +1,5 @@
-"""`mitsvbrdf simulate`: writes the capture, and reports bad input as a one-line error."""
+"""`mitsvbrdf simulate` writes the capture and reports bad input as a one-line error; `mitsvbrdf scene`
+copies the default rig out; `mitsvbrdf patterns pca` writes a pattern group."""
 
 import json
 
@@ -66,3 +67,15 @@ def test_patterns_pca_writes_a_group_of_valid_patterns(tmp_path):
     p = np.load(out)
     assert p.shape == (5, 3, 32, 32) and p.min() >= 0 and p.max() <= 1
 
+
+def test_scene_copies_the_default_rig_out(tmp_path):
+    out = tmp_path / "bench" / "rig.xml"
+    assert main(["scene", "--out", str(out)]) == 0
+    assert out.read_bytes() == DEFAULT_SCENE.read_bytes()
+
+
+def test_scene_does_not_overwrite_an_existing_file(tmp_path, capsys):
+    out = tmp_path / "calibrated.xml"
+    out.write_text("<scene/>")
+    assert main(["scene", "--out", str(out)]) == 2
+    assert "exists" in capsys.readouterr().err and out.read_text() == "<scene/>"

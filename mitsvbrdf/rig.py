@@ -1,6 +1,6 @@
 """The capture rig: camera, LCD and sample geometry plus the LCD's display model, from a scene file.
 
-Frames and units (DESIGN.md): metres; the sample is the square ``|x|, |y| <= size/2`` on the
+Frames and units (docs/conventions.md): metres; the sample is the square ``|x|, |y| <= size/2`` on the
 plane z = 0 with normal +z; texel (i, j) of an H x W map is the point
 ``x = (j + 1/2) / W * size - size/2``, ``y = size/2 - (i + 1/2) / H * size`` (row 0 at the top).
 The LCD is a rectangle with corners ``c0..c3`` (Mitsuba rectangle local (-1,-1), (1,-1), (1,1),

@@ -2,6 +2,7 @@
 # Every target first runs scripts/setup.sh (idempotent: .venv, pinned packages, libLLVM >= 16).
 #   make test PYTEST_ARGS='-k backend -x'     extra pytest arguments
 #   make test PYTEST_ARGS='-m "not mitsuba"'  skip the tests that need the Mitsuba backend
+#   make test PYTEST_ARGS='-m "not slow"'     skip building and installing the wheel (tests/test_package.py)
 PY := .venv/bin/python
 PYTEST_ARGS ?=
 

@@ -10,8 +10,8 @@ from pathlib import Path
 
 import mitsvbrdf as ms
 from mitsvbrdf.capture.scene_file import write_integrator_options
+from mitsvbrdf.rig import DEFAULT_SCENE
 
-ROOT = Path(__file__).resolve().parent.parent
 DEFAULT = "ltc-cv"
 #: name -> integrator options ("plain" is the integrator before variance reduction)
 ESTIMATORS = {"plain": {"sampler": "independent", "control_variate": "none"},
@@ -26,6 +26,6 @@ ESTIMATORS = {"plain": {"sampler": "independent", "control_variate": "none"},
 def estimator_rigs(work: Path, names=None) -> dict[str, ms.Rig]:
     """A rig per estimator (``names``: a subset, default all): the default scene with that
     estimator's integrator options, written into ``work``."""
-    scene = ROOT / "scenes" / "lcd_rig.xml"
+    scene = DEFAULT_SCENE
     return {name: ms.Rig.from_scene(write_integrator_options(scene, work / f"{name}.xml", **ESTIMATORS[name]))
             for name in (names or ESTIMATORS)}

@@ -21,6 +21,7 @@ from pathlib import Path
 import torch
 
 import mitsvbrdf as ms
+from mitsvbrdf.demo import DEFAULT_MATERIAL
 from mitsvbrdf.patterns import monograd, random
 from report import write_report
 
@@ -28,7 +29,7 @@ ROOT = Path(__file__).resolve().parent.parent
 
 
 def material(size: int, roughness: float) -> ms.SVBRDF:
-    base = ms.SVBRDF.load(ROOT / "examples" / "materials" / "artificial_0.png").resized(size)
+    base = ms.SVBRDF.load(DEFAULT_MATERIAL).resized(size)
     return ms.SVBRDF(normal=base.normal, diffuse=base.diffuse,
                      roughness=torch.full_like(base.roughness, roughness),
                      specular=torch.full_like(base.specular, 0.04))

@@ -36,6 +36,7 @@ from pathlib import Path
 import torch
 
 import mitsvbrdf as ms
+from mitsvbrdf.demo import DEFAULT_MATERIAL
 from mitsvbrdf.patterns import colorgrad, monograd, random, step_edges
 from estimators import DEFAULT, ESTIMATORS, estimator_rigs
 from report import write_report
@@ -45,7 +46,7 @@ SPPS = (1, 4, 16, 64, 256)
 
 
 def material(size: int, roughness: float, tilt_deg: float | None = None) -> ms.SVBRDF:
-    base = ms.SVBRDF.load(ROOT / "examples" / "materials" / "artificial_0.png").resized(size)
+    base = ms.SVBRDF.load(DEFAULT_MATERIAL).resized(size)
     normal = base.normal
     if tilt_deg is not None:
         t = math.radians(tilt_deg)

@@ -39,6 +39,7 @@ from pathlib import Path
 import torch
 
 from mitsvbrdf.capture.scene_file import write_integrator_options
+from mitsvbrdf.rig import DEFAULT_SCENE
 
 ROOT = Path(__file__).resolve().parent.parent
 CONFIG = ROOT / "train" / "fixed-monograd-small.toml"
@@ -61,7 +62,7 @@ def train(name: str, out: Path, args) -> float:
             f"train.steps={args.steps}", "train.batch=4", f"seed={getattr(args, 'seed', 4)}",
             f"train.checkpoint_every={min(100, args.steps)}", f"train.log_every={min(10, args.steps)}", *overrides]
     if options is not None:
-        scene = write_integrator_options(ROOT / "scenes" / "lcd_rig.xml", out.parent / f"{name}.xml", **options)
+        scene = write_integrator_options(DEFAULT_SCENE, out.parent / f"{name}.xml", **options)
         sets.append(f"scene=\"{scene}\"")
     cmd = [sys.executable, "-m", "mitsvbrdf", "train", str(CONFIG)]
     if (out / "checkpoint.pt").exists():

@@ -1,8 +1,8 @@
 """mitsvbrdf: sparse SVBRDF acquisition with adaptive illumination multiplexing.
 
-Public API (DESIGN.md):
+Public API (docs/conventions.md has the units, frames and shapes):
 
-    rig = Rig.from_scene("scenes/lcd_rig.xml")
+    rig = Rig.from_scene()                # the default rig, mitsvbrdf/scenes/lcd_rig.xml
     svbrdf = SVBRDF.load(path)            # or SVBRDF.constant(...)
     imgs = render(svbrdf, patterns, rig)  # (B, P, 3, H, W)
     lpdf = importance(normal, roughness, rig)

@@ -1,4 +1,4 @@
-"""The project's one BRDF: the Deschaintre et al. 2018 "Substance" GGX model (DESIGN.md).
+"""The project's one BRDF: the Deschaintre et al. 2018 "Substance" GGX model (docs/conventions.md).
 
     alpha = max(r^2, ALPHA_MIN)
     D     = alpha^2 / (pi ((n.h)^2 (alpha^2 - 1) + 1)^2)

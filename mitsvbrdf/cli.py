@@ -15,6 +15,8 @@ Commands:
         The adaptive acquisition at the bench, every frame on disk as it arrives (docs/capture.md).
     calibrate {response,display,color,geometry,intrinsics} --scene S --out S2 ...
         Calibrate the bench; each result is written into a copy of the scene file.
+    scene --out FILE
+        Copy the default rig's scene file (shipped in the package) out, to edit or calibrate.
     simulate SCENE --material PATH --patterns NAME_OR_FILE --out DIR
         Render the capture of a material under patterns through the scene's rig and display
         model; writes one EXR (linear radiance) and one tone-mapped PNG per pattern, the patterns
@@ -25,6 +27,7 @@ from __future__ import annotations
 
 import argparse
 import json
+import shutil
 import sys
 import time
 from pathlib import Path
@@ -44,7 +47,7 @@ from .evaluation import evaluate, load_materials, simulated
 from .importance import importance
 from .patterns import load_patterns, pca_patterns
 from .render import QuadratureSettings, render
-from .rig import Rig
+from .rig import DEFAULT_SCENE, Rig
 from .svbrdf import SVBRDF
 from .training import TrainingInterrupted, load_config, train
 from .training.chain import load_chain, run_chain
@@ -138,6 +141,17 @@ def cmd_materials_preview(args: argparse.Namespace) -> int:
     imageio.write_png(args.out, sheet)
     print(f"wrote {args.out}: {args.n} materials (generated in {gen_s:.2f} s; tiles normal | diffuse | "
           f"roughness | specular{' | render' if renders is not None else ''})")
+    return 0
+
+
+def cmd_scene(args: argparse.Namespace) -> int:
+    out = check_out_file("--out", args.out)
+    if out.exists():
+        raise MitsvbrdfError(f"--out {str(out)!r} exists (perhaps a calibrated rig): remove it or choose "
+                             "another name")
+    out.parent.mkdir(parents=True, exist_ok=True)
+    shutil.copyfile(DEFAULT_SCENE, out)
+    print(f"wrote {out}: the default rig ({DEFAULT_SCENE.name}); pass it to --scene, e.g. of calibrate")
     return 0
 
 
@@ -254,7 +268,8 @@ def build_parser() -> argparse.ArgumentParser:
     p = argparse.ArgumentParser(prog="mitsvbrdf", description=__doc__.split("\n")[0])
     sub = p.add_subparsers(dest="command", required=True)
     s = sub.add_parser("simulate", help="render a simulated capture through a scene file")
-    s.add_argument("scene", help="Mitsuba scene file of the rig, e.g. scenes/lcd_rig.xml")
+    s.add_argument("scene", help="Mitsuba scene file of the rig, e.g. the default one copied out by "
+                   "`mitsvbrdf scene --out rig.xml`")
     s.add_argument("--material", required=True, help="SVBRDF: strip PNG, folder of maps, or EXR")
     s.add_argument("--patterns", default="monograd",
                    help="pattern family (uniform, monograd, colorgrad, step_edges, random) or a "
@@ -284,7 +299,7 @@ def build_parser() -> argparse.ArgumentParser:
     m.add_argument("--columns", type=int, default=2, help="materials side by side (default 2)")
     m.add_argument("--render-size", type=int, default=64,
                    help="resolution of the reference render (default 64; 0 = no render)")
-    m.add_argument("--scene", default=None, help="rig scene file (default scenes/lcd_rig.xml)")
+    m.add_argument("--scene", default=None, help="rig scene file (default: the package's default rig)")
     m.add_argument("--pattern", default="uniform", help="pattern family or file; its first pattern is used")
     m.add_argument("--quiet", action="store_true", help="no progress bar")
     m.set_defaults(func=cmd_materials_preview)
@@ -322,11 +337,14 @@ def build_parser() -> argparse.ArgumentParser:
     tc.add_argument("--set", action="append", metavar="KEY=VALUE", help="override a key in every stage")
     tc.add_argument("--quiet", action="store_true", help="no progress bars")
     tc.set_defaults(func=cmd_train_chain)
+    sc = sub.add_parser("scene", help="copy the default rig's scene file out (to edit it or calibrate into it)")
+    sc.add_argument("--out", required=True, help="scene file to write (refused when it exists)")
+    sc.set_defaults(func=cmd_scene)
     d = sub.add_parser("demo", help="the whole method on the bundled material with the shipped networks")
     d.add_argument("--out", default="out/demo", help="output folder (default out/demo)")
     d.add_argument("--material", default="", help="material to acquire (default: the bundled example)")
     d.add_argument("--networks", default="", help="networks.pt of stage2/finetune (default: the shipped weights)")
-    d.add_argument("--scene", default=None, help="rig scene file (default scenes/lcd_rig.xml)")
+    d.add_argument("--scene", default=None, help="rig scene file (default: the package's default rig)")
     d.add_argument("--resolution", type=int, default=256, help="material resolution (default 256)")
     d.add_argument("--spp", type=int, default=64, help="Mitsuba samples per texel (default 64)")
     d.add_argument("--seed", type=int, default=0)

@@ -31,8 +31,8 @@ from .rig import Rig
 from .svbrdf import SVBRDF
 from .viewing import material_figure, pattern_strip, tonemap, write_html_page
 
-ROOT = Path(__file__).resolve().parent.parent
-DEFAULT_MATERIAL = ROOT / "examples" / "materials" / "artificial_0.png"
+#: The bundled example material, shipped inside the package (MIT, see examples/LICENSE-MIT beside it).
+DEFAULT_MATERIAL = Path(__file__).resolve().parent / "examples" / "artificial_0.png"
 
 
 def run_demo(out: str | Path, *, material: str | Path = DEFAULT_MATERIAL, networks: str | Path = DEFAULT_NETWORKS,

@@ -1,6 +1,6 @@
 """Evaluation metrics of reconstructed SVBRDFs (the paper's Tables 1 and 3).
 
-* Map RMSE on the encoded maps (DESIGN.md: normal as (n + 1) / 2, albedos and roughness as
+* Map RMSE on the encoded maps (docs/conventions.md: normal as (n + 1) / 2, albedos and roughness as
   stored, all in [0, 1]) per map and their average.
 * Re-rendering RMSE and SSIM: both materials rendered under the same novel lighting
   (:mod:`mitsvbrdf.relight`), tone-mapped with the ground truth's exposure, compared per image.

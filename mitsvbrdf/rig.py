@@ -1,6 +1,6 @@
 """The capture rig: camera, LCD and sample geometry plus the LCD's display model, from a scene file.
 
-Frames and units (DESIGN.md): metres; the sample is the square ``|x|, |y| <= size/2`` on the
+Frames and units (docs/conventions.md): metres; the sample is the square ``|x|, |y| <= size/2`` on the
 plane z = 0 with normal +z; texel (i, j) of an H x W map is the point
 ``x = (j + 1/2) / W * size - size/2``, ``y = size/2 - (i + 1/2) / H * size`` (row 0 at the top).
 The LCD is a rectangle with corners ``c0..c3`` (Mitsuba rectangle local (-1,-1), (1,-1), (1,1),
@@ -22,7 +22,8 @@ from torch import Tensor
 from .errors import PatternError, SceneError
 from .scene_xml import SceneNode, load_scene_xml
 
-_DEFAULT_SCENE = Path(__file__).resolve().parent.parent / "scenes" / "lcd_rig.xml"
+#: The default rig, shipped inside the package (``mitsvbrdf scene --out FILE`` copies it out).
+DEFAULT_SCENE = Path(__file__).resolve().parent / "scenes" / "lcd_rig.xml"
 
 
 @dataclass(frozen=True)
@@ -170,13 +171,13 @@ class Rig:
 
     @classmethod
     def from_scene(cls, path: str | Path | None = None, **defaults: object) -> "Rig":
-        """Read the rig from a Mitsuba scene file (default: ``scenes/lcd_rig.xml``).
+        """Read the rig from a Mitsuba scene file (default: :data:`DEFAULT_SCENE`).
 
         The file needs a ``perspective`` sensor, a ``rectangle`` with an ``lcd`` emitter and a
         ``rectangle`` with an ``svbrdf_ggx`` BSDF (the sample, centred at the origin in z = 0).
         ``defaults`` override the file's ``<default>`` values.
         """
-        path = Path(path) if path is not None else _DEFAULT_SCENE
+        path = Path(path) if path is not None else DEFAULT_SCENE
         root = load_scene_xml(path, **defaults)
         sensor = next((c for c in root.children if c.tag == "sensor"), None)
         if sensor is None:

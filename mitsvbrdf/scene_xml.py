@@ -1,11 +1,12 @@
 """Read the parts of a Mitsuba 3 XML scene file that the torch side of mitsvbrdf needs.
 
-The scene files in ``scenes/`` are real Mitsuba scenes (Mitsuba loads them once the project's
-plugins are registered). The torch renderers, the rig geometry and the display model read the
-same file here without Mitsuba: ``<default>`` substitution, typed properties (``float``,
-``integer``, ``boolean``, ``string``, ``rgb``, ``point``/``vector``) and ``to_world`` transforms
-built from ``translate``, ``scale``, ``rotate``, ``matrix`` and ``lookat`` exactly as Mitsuba
-composes them (each element is applied after the previous ones: M = op @ M).
+The rig's scene files (the default one is ``mitsvbrdf/scenes/lcd_rig.xml``) are real Mitsuba
+scenes (Mitsuba loads them once the project's plugins are registered). The torch renderers, the
+rig geometry and the display model read the same file here without Mitsuba: ``<default>``
+substitution, typed properties (``float``, ``integer``, ``boolean``, ``string``, ``rgb``,
+``point``/``vector``) and ``to_world`` transforms built from ``translate``, ``scale``, ``rotate``,
+``matrix`` and ``lookat`` exactly as Mitsuba composes them (each element is applied after the
+previous ones: M = op @ M).
 """
 
 from __future__ import annotations

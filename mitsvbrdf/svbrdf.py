@@ -1,6 +1,6 @@
 """The SVBRDF container: four maps in memory, validated, and their file formats.
 
-Maps (DESIGN.md "Conventions") are floating-point torch tensors (float32 unless converted with
+Maps (docs/conventions.md) are floating-point torch tensors (float32 unless converted with
 :meth:`SVBRDF.to`), always batched, all linear:
 
     normal    (B, 3, H, W)  unit tangent-space vectors: x right, y up, z out of the surface (z >= 0)

@@ -1,4 +1,4 @@
-"""``svbrdf_ggx``: the project's BRDF (DESIGN.md) as a Mitsuba 3 BSDF with per-texel maps.
+"""``svbrdf_ggx``: the project's BRDF (mitsvbrdf.brdf) as a Mitsuba 3 BSDF with per-texel maps.
 
 Parameters (scene file or ``mi.load_dict``):
     normal      rgb, (H, W, 3) tensor or image file: tangent-space unit normals (x right, y up, z out)

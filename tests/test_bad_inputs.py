@@ -16,11 +16,13 @@ import torch
 import mitsvbrdf as ms
 from mitsvbrdf import patterns as pt
 from mitsvbrdf.cli import main
+from mitsvbrdf.demo import DEFAULT_MATERIAL
 from mitsvbrdf.errors import ImageError, MaterialError, MitsvbrdfError, PatternError
+from mitsvbrdf.rig import DEFAULT_SCENE
 
 ROOT = Path(__file__).resolve().parents[1]
-SCENE = str(ROOT / "scenes" / "lcd_rig.xml")
-MATERIAL = str(ROOT / "examples" / "materials" / "artificial_0.png")
+SCENE = str(DEFAULT_SCENE)
+MATERIAL = str(DEFAULT_MATERIAL)
 NETWORKS = str(ROOT / "mitsvbrdf" / "weights" / "networks.pt")
 
 
@@ -126,6 +128,8 @@ CASES = [
      None),
     ("materials-preview-out-is-a-folder", ["materials", "preview", "--n", "1", "--out", "cal.xml", "--quiet"],
      "is a folder", _a_folder),
+    ("scene-out-is-a-folder", ["scene", "--out", "cal.xml"], "is a folder", _a_folder),
+    ("scene-out-under-a-file", ["scene", "--out", "afile/rig.xml"], "which is a file", _a_file),
     ("capture-exposures-words", capture("--exposures", "abc"), "--exposures", None),
     ("capture-exposures-not-positive", capture("--exposures", "0,-1"), "--exposures", None),
     ("capture-gain-0", capture("--gain", "0"), "--gain", None),

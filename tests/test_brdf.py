@@ -1,4 +1,4 @@
-"""The BRDF is exactly the DESIGN.md formula, physically sane, and finite at the extremes."""
+"""The BRDF is exactly the formula of docs/conventions.md, physically sane, and finite at the extremes."""
 
 import math
 
@@ -14,7 +14,7 @@ def _sph(theta, phi):
 
 
 def _design_formula(n, l, v, kd, ks, r):
-    """DESIGN.md, written literally in float64 numpy (independent of the library's algebra)."""
+    """The formula, written literally in float64 numpy (independent of the library's algebra)."""
     a = max(r * r, ALPHA_MIN)
     h = (l + v) / np.linalg.norm(l + v)
     nh, nl, nv, vh = n @ h, n @ l, n @ v, v @ h

@@ -1,7 +1,5 @@
 """Calibration procedures recover known ground truth from captures made by the simulated rig."""
 
-from pathlib import Path
-
 import numpy as np
 import pytest
 
@@ -12,8 +10,9 @@ from mitsvbrdf.capture.display import write_display_model
 from mitsvbrdf.capture.geometry import _posed, write_lcd_pose
 from mitsvbrdf.capture.hdr import Response
 from mitsvbrdf.capture.scene_file import read_camera_calibration, write_camera_calibration
+from mitsvbrdf.rig import DEFAULT_SCENE
 
-SCENE = Path(__file__).resolve().parents[1] / "scenes" / "lcd_rig.xml"
+SCENE = DEFAULT_SCENE
 CROSSTALK = np.array([[0.8, 0.15, 0.05], [0.1, 0.8, 0.1], [0.05, 0.2, 0.75]])
 
 

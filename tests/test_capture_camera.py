@@ -3,8 +3,6 @@ Zhang's intrinsics calibration, and intrinsics written back into a scene file.""
 
 from __future__ import annotations
 
-from pathlib import Path
-
 import numpy as np
 import pytest
 from scipy.spatial.transform import Rotation
@@ -13,9 +11,10 @@ import mitsvbrdf as ms
 from mitsvbrdf.capture.camera import (CameraModel, calibrate_intrinsics, checkerboard_image, checkerboard_points,
                                       find_checkerboard_corners, write_camera_intrinsics)
 from mitsvbrdf.errors import SceneError
+from mitsvbrdf.rig import DEFAULT_SCENE
 from mitsvbrdf.scene_xml import lookat_matrix
 
-SCENE = Path(__file__).resolve().parents[1] / "scenes" / "lcd_rig.xml"
+SCENE = DEFAULT_SCENE
 SIZE = (240, 320)  # (H, W) of the small synthetic camera
 # A camera with slightly non-square pixels and an off-centre principal point (what calibration finds).
 K_TRUE = np.array([[400.0, 0.0, 165.3], [0.0, 403.0, 117.2], [0.0, 0.0, 1.0]])

@@ -1,7 +1,6 @@
 """The bench commands end to end on the simulated rig: `mitsvbrdf capture` and `mitsvbrdf calibrate`."""
 
 import json
-from pathlib import Path
 
 import numpy as np
 import pytest
@@ -11,10 +10,11 @@ from mitsvbrdf import imageio
 from mitsvbrdf.capture.camera import CameraModel, checkerboard_image
 from mitsvbrdf.capture.display import write_display_model
 from mitsvbrdf.cli import main
+from mitsvbrdf.demo import DEFAULT_MATERIAL
+from mitsvbrdf.rig import DEFAULT_SCENE
 
-ROOT = Path(__file__).resolve().parents[1]
-SCENE = ROOT / "scenes" / "lcd_rig.xml"
-MATERIAL = ROOT / "examples" / "materials" / "artificial_0.png"
+SCENE = DEFAULT_SCENE
+MATERIAL = DEFAULT_MATERIAL
 SIM = ["--simulate", str(MATERIAL), "--resolution", "16", "--spp", "4", "--quiet"]
 
 

@@ -1,15 +1,14 @@
 """LCD calibration from simulated captures: drive curve and emission decay, written to a scene."""
 
-from pathlib import Path
-
 import numpy as np
 import pytest
 import torch
 
 import mitsvbrdf as ms
 from mitsvbrdf.capture.display import diffuse_target, fit_decay_power, fit_gamma, write_display_model
+from mitsvbrdf.rig import DEFAULT_SCENE
 
-SCENE = Path(__file__).resolve().parents[1] / "scenes" / "lcd_rig.xml"
+SCENE = DEFAULT_SCENE
 
 
 def capture(rig, pattern, size=12):

@@ -1,14 +1,13 @@
 """LCD pose from its reflections in a mirror sample (simulated), written back into a scene."""
 
-from pathlib import Path
-
 import numpy as np
 import pytest
 
 import mitsvbrdf as ms
 from mitsvbrdf.capture.geometry import _posed, fit_lcd_pose, mirror_points, write_lcd_pose
+from mitsvbrdf.rig import DEFAULT_SCENE
 
-SCENE = Path(__file__).resolve().parents[1] / "scenes" / "lcd_rig.xml"
+SCENE = DEFAULT_SCENE
 
 
 def _true_pose(rig):

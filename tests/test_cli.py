@@ -1,7 +1,7 @@
-"""`mitsvbrdf simulate`: writes the capture, and reports bad input as a one-line error."""
+"""`mitsvbrdf simulate` writes the capture and reports bad input as a one-line error; `mitsvbrdf scene`
+copies the default rig out; `mitsvbrdf patterns pca` writes a pattern group."""
 
 import json
-from pathlib import Path
 
 import numpy as np
 import pytest
@@ -10,10 +10,11 @@ import torch
 import mitsvbrdf as ms
 from mitsvbrdf import imageio
 from mitsvbrdf.cli import main
+from mitsvbrdf.demo import DEFAULT_MATERIAL
+from mitsvbrdf.rig import DEFAULT_SCENE
 
-ROOT = Path(__file__).resolve().parents[1]
-SCENE = ROOT / "scenes" / "lcd_rig.xml"
-EXAMPLE = ROOT / "examples" / "materials" / "artificial_0.png"
+SCENE = DEFAULT_SCENE
+EXAMPLE = DEFAULT_MATERIAL
 
 
 def test_simulate_writes_images_patterns_and_a_record(tmp_path):
@@ -65,3 +66,16 @@ def test_patterns_pca_writes_a_group_of_valid_patterns(tmp_path):
     assert main(["patterns", "pca", "--out", str(out), "--n", "6", "--size", "16", "--stride", "4"]) == 0
     p = np.load(out)
     assert p.shape == (5, 3, 32, 32) and p.min() >= 0 and p.max() <= 1
+
+
+def test_scene_copies_the_default_rig_out(tmp_path):
+    out = tmp_path / "bench" / "rig.xml"
+    assert main(["scene", "--out", str(out)]) == 0
+    assert out.read_bytes() == DEFAULT_SCENE.read_bytes()
+
+
+def test_scene_does_not_overwrite_an_existing_file(tmp_path, capsys):
+    out = tmp_path / "calibrated.xml"
+    out.write_text("<scene/>")
+    assert main(["scene", "--out", str(out)]) == 2
+    assert "exists" in capsys.readouterr().err and out.read_text() == "<scene/>"

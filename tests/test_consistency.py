@@ -19,6 +19,7 @@ from mitsvbrdf.demo import DEFAULT_MATERIAL
 from mitsvbrdf.evaluation import Relighting, evaluate, load_materials, score, simulated
 from mitsvbrdf.nets import network_record
 from mitsvbrdf.patterns import load_patterns
+from mitsvbrdf.rig import DEFAULT_SCENE
 from mitsvbrdf.training import STAGES, RenderSettings
 
 
@@ -52,7 +53,7 @@ def test_evaluate_scores_are_those_of_the_api(tmp_path, rig):
 
 def test_simulate_writes_the_renders_of_the_api(tmp_path, rig):
     out = tmp_path / "sim"
-    assert main(["simulate", "scenes/lcd_rig.xml", "--material", str(DEFAULT_MATERIAL), "--patterns", "monograd",
+    assert main(["simulate", str(DEFAULT_SCENE), "--material", str(DEFAULT_MATERIAL), "--patterns", "monograd",
                  "--resolution", "32", "--spp", "2", "--seed", "3", "--out", str(out), "--quiet"]) == 0
     with torch.no_grad():
         want = ms.render(ms.SVBRDF.load(DEFAULT_MATERIAL).resized(32), load_patterns("monograd", *rig.lcd_cells), rig,

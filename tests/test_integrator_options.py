@@ -19,6 +19,7 @@ from mitsvbrdf import patterns as pt
 from mitsvbrdf.capture.scene_file import write_integrator_options
 from mitsvbrdf.errors import SceneError
 from mitsvbrdf.render.control_variate import control_variate
+from mitsvbrdf.rig import DEFAULT_SCENE
 
 from conftest import flat_material, textured_material
 
@@ -26,7 +27,7 @@ pytestmark = pytest.mark.mitsuba
 if backend.find_libllvm() is None:  # pragma: no cover - depends on the machine
     pytest.skip("no libLLVM >= 16 for the LLVM backend", allow_module_level=True)
 
-SCENE = Path(__file__).resolve().parents[1] / "scenes" / "lcd_rig.xml"
+SCENE = DEFAULT_SCENE
 
 #: name -> integrator options (the scene file's default is "ltc-cv")
 OPTIONS = {

@@ -8,7 +8,6 @@ All on the CPU (llvm_ad_rgb) at 8-16 px; skipped when no libLLVM >= 16 is availa
 import math
 import subprocess
 import sys
-from pathlib import Path
 
 import numpy as np
 import pytest
@@ -18,6 +17,7 @@ import mitsvbrdf as ms
 from mitsvbrdf import backend
 from mitsvbrdf import patterns as pt
 from mitsvbrdf.errors import PatternError, SceneError
+from mitsvbrdf.rig import DEFAULT_SCENE
 
 from conftest import flat_material
 
@@ -25,7 +25,7 @@ pytestmark = pytest.mark.mitsuba
 if backend.find_libllvm() is None:  # pragma: no cover - depends on the machine
     pytest.skip("no libLLVM >= 16 for the LLVM backend", allow_module_level=True)
 
-SCENE = Path(__file__).resolve().parents[1] / "scenes" / "lcd_rig.xml"
+SCENE = DEFAULT_SCENE
 
 
 @pytest.fixture(scope="module")

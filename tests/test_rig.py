@@ -1,7 +1,6 @@
-"""The rig read from scenes/lcd_rig.xml: sizes, the mirror configuration, and clear scene errors."""
+"""The default rig (mitsvbrdf/scenes/lcd_rig.xml): sizes, the mirror configuration, and clear scene errors."""
 
 import math
-from pathlib import Path
 
 import numpy as np
 import pytest
@@ -9,8 +8,9 @@ import torch
 
 import mitsvbrdf as ms
 from mitsvbrdf.errors import SceneError
+from mitsvbrdf.rig import DEFAULT_SCENE
 
-SCENE = Path(__file__).resolve().parent.parent / "scenes" / "lcd_rig.xml"
+SCENE = DEFAULT_SCENE
 
 
 def test_default_rig_has_a_9cm_lcd_of_32x32_cells_and_a_256px_camera(rig):

@@ -1,4 +1,5 @@
-"""The package's import structure: entry points are leaves, and no two modules need each other.
+"""The package's import structure: entry points are leaves, no two modules need each other, and
+every module sits in one layer of docs/architecture.md and imports nothing from a layer above.
 
 Imports are read with ``ast`` from every .py under mitsvbrdf/, at module level and inside
 functions alike (a function-local import hides a cycle, it does not remove it). Only imports
@@ -16,6 +17,31 @@ PACKAGE = Path(__file__).resolve().parent.parent / "mitsvbrdf"
 #: Command-line front ends: they may import anything, and nothing but each other imports them.
 ENTRY_POINTS = {"mitsvbrdf.cli", "mitsvbrdf.demo", "mitsvbrdf.capture.cli", "mitsvbrdf.__main__",
                 "mitsvbrdf.nets.__main__"}
+
+#: The layers of docs/architecture.md, lowest first. A module may import from its own layer and the
+#: ones below. A name stands for a module or a whole subpackage; the longest matching name decides.
+#: "" is the package itself (``mitsvbrdf``, the public API), which re-exports up to the method layer.
+LAYERS = {
+    "foundation": ["errors", "checks", "imageio", "backend", "scene_xml"],
+    "physics": ["brdf", "rig", "svbrdf", "patterns", "sensor"],
+    "renderers": ["render", "relight"],
+    "method": ["importance", "separation", "nets", "losses", "acquisition", "training", "data", ""],
+    "applications": ["evaluation", "metrics", "viewing", "export", "data.preview", "capture", "cli", "demo",
+                     "__main__", "nets.__main__"],
+}
+#: The Mitsuba plugins (package mitsvbrdf_plugins, folder plugins/) belong to the renderers.
+PLUGINS = Path(__file__).resolve().parent.parent / "plugins"
+
+
+def layer_of(module: str) -> int | None:
+    """Index in LAYERS of a dotted module name of the package (None: in no layer)."""
+    rel = module.partition(".")[2]
+    best, found = -1, None
+    for k, names in enumerate(LAYERS.values()):
+        for name in names:
+            if (rel == name or (name and rel.startswith(name + "."))) and len(name) > best:
+                best, found = len(name), k
+    return found
 
 
 def module_files(package: Path = PACKAGE) -> dict[str, Path]:
@@ -149,3 +175,32 @@ def test_no_library_module_imports_an_entry_point():
 
 def test_the_import_graph_has_no_cycle():
     assert cycles(import_graph()) == []
+
+
+def test_every_module_sits_in_a_layer():
+    assert [m for m in import_graph() if layer_of(m) is None] == []
+
+
+def test_no_module_imports_from_a_layer_above_its_own():
+    names = list(LAYERS)
+    bad = [f"{m} ({names[layer_of(m)]}) imports {d} ({names[layer_of(d)]})"
+           for m, deps in import_graph().items() for d in deps if layer_of(d) > layer_of(m)]
+    assert bad == []
+
+
+def test_the_plugins_import_only_foundation_physics_and_renderers():
+    files = module_files()
+    used = set()
+    for path in PLUGINS.glob("*.py"):
+        for node in ast.walk(ast.parse(path.read_text())):
+            if isinstance(node, ast.ImportFrom) and not node.level and (node.module or "").startswith("mitsvbrdf"):
+                used.add(_resolve(node.module, files))
+            elif isinstance(node, ast.Import):
+                used |= {_resolve(a.name, files) for a in node.names if a.name.startswith("mitsvbrdf.")}
+    assert used and max(layer_of(m) for m in used) <= list(LAYERS).index("renderers")
+
+
+def test_docs_architecture_names_every_layer_entry():
+    text = (PACKAGE.parent / "docs" / "architecture.md").read_text()
+    missing = [n for names in LAYERS.values() for n in names if n and f"`{n}`" not in text]
+    assert missing == []

@@ -3,7 +3,7 @@ onto the sample's texel grid.
 
 Frames and conventions:
 
-- World: metres, the sample square ``|x|, |y| <= size/2`` on z = 0 (DESIGN.md).
+- World: metres, the sample square ``|x|, |y| <= size/2`` on z = 0 (docs/conventions.md).
 - Camera: Mitsuba's ``camera_to_world`` (as :attr:`mitsvbrdf.rig.Rig.camera_to_world`): the camera
   looks along its local +z; local +x is image *left* and local +y image *up* (Mitsuba's look-at
   puts local x = up x dir). A point with local coordinates (X, Y, Z) lands on pixel

@@ -18,7 +18,7 @@ from .. import imageio
 from ..acquisition import DEFAULT_NETWORKS, load_adaptive
 from ..checks import check_float, check_int, check_out_dir, check_out_file, check_seed
 from ..errors import MitsvbrdfError
-from ..rig import Rig
+from ..rig import DEFAULT_SCENE, Rig
 from ..svbrdf import SVBRDF
 from . import calibrate as cal
 from .camera import (CameraModel, calibrate_intrinsics, checkerboard_points, find_checkerboard_corners,
@@ -147,7 +147,7 @@ def cmd_calibrate(args: argparse.Namespace) -> int:
     if args.step != "intrinsics":
         check_device_options(args, exposures_needed=2 if args.step == "response" else 1)
         check_float("--albedo", args.albedo, 0.0, 1.0, low_open=True)
-    scene = args.scene or str(Path(__file__).resolve().parents[2] / "scenes" / "lcd_rig.xml")
+    scene = args.scene or str(DEFAULT_SCENE)
     args.scene = scene
     rig = Rig.from_scene(scene)
     if args.step == "intrinsics":
@@ -216,7 +216,7 @@ def _calibrate_intrinsics(args, rig) -> int:
 
 def add_parsers(sub) -> None:
     c = sub.add_parser("capture", help="run the adaptive acquisition at the bench (or on the simulated rig)")
-    c.add_argument("--scene", default=None, help="calibrated rig scene file (default scenes/lcd_rig.xml)")
+    c.add_argument("--scene", default=None, help="calibrated rig scene file (default: the package's default rig)")
     c.add_argument("--out", required=True, help="session folder (every frame is written as it arrives)")
     c.add_argument("--resume", action="store_true", help="continue the session in --out")
     c.add_argument("--networks", default="", help="networks.pt of stage2/finetune (default: the shipped weights)")
@@ -225,7 +225,7 @@ def add_parsers(sub) -> None:
     c.set_defaults(func=cmd_capture)
     k = sub.add_parser("calibrate", help="calibrate the bench; writes the result into a copy of the scene file")
     k.add_argument("step", choices=["response", "display", "color", "geometry", "intrinsics"])
-    k.add_argument("--scene", default=None, help="scene file to start from (default scenes/lcd_rig.xml)")
+    k.add_argument("--scene", default=None, help="scene file to start from (default: the package's default rig)")
     k.add_argument("--out", required=True, help="the calibrated scene file to write")
     k.add_argument("--albedo", type=float, default=0.8, help="display: albedo of the white target (default 0.8)")
     k.add_argument("--views", default="", help="intrinsics: folder of checkerboard photos")

@@ -2,7 +2,7 @@
 
 Maps are a dict of tensors ``{"normal", "diffuse", "roughness", "specular"}`` (and optionally
 ``"render"``), each ``(..., C, H, W)``: one material ``(C, H, W)`` or a batch ``(B, C, H, W)``.
-Conventions (DESIGN.md): row 0 is the top of the sample, the tangent frame has x to the right and
+Conventions (docs/conventions.md): row 0 is the top of the sample, the tangent frame has x to the right and
 y *up*, so the normal's x/y components must follow every spatial transform of the grid:
 
 ==================  =====================================================================

@@ -10,8 +10,8 @@ along the shading normal and the view direction in its xz-plane (x towards the v
     I = kd (1 - ks) sum_c E_c L_c + sum_c E'_c L_c (ks (A_1 - A_S) + A_S)
 
 E_c: exact cell form factor; E'_c: the LTC integral over cell c; A_1, A_S: the lobe's directional
-albedo with F = 1 and with F = S (Schlick weight), so the Fresnel term of DESIGN.md is exact in
-the albedo (not in its angular distribution). Emission decay, when the scene has one, is applied
+albedo with F = 1 and with F = S (Schlick weight), so the Fresnel term of mitsvbrdf.brdf is exact
+in the albedo (not in its angular distribution). Emission decay, when the scene has one, is applied
 at the cell centres (an approximation the benchmark measures).
 """
 

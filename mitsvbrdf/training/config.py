@@ -5,7 +5,7 @@ Layout (every key optional except ``stage``; defaults below)::
     stage = "stage1"              # init | stage1 | stage2 | finetune | fixed
     seed = 0
     out = "runs/stage1"           # relative paths are relative to the current directory
-    scene = "scenes/lcd_rig.xml"
+    scene = ""                    # rig scene file; "": the package's default rig
 
     [data]     source = "procedural" | "strips" | "folders"; root; size; length; families
     [render]   method = "mitsuba" | "ltc" | "reference"; spp; [render.noise] shot, read, bits

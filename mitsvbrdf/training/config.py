@@ -244,12 +244,12 @@ def _read_extending(path: Path, including: tuple[Path, ...]) -> dict:
 
 def _merge(base: dict, over: dict) -> dict:
     """``over`` on ``base``: tables merge key by key, any other value (a list too) replaces."""
-    merged = _deepcopy(base)
+    merged = copy.deepcopy(base)
     for key, value in over.items():
         if isinstance(value, dict) and isinstance(merged.get(key), dict):
             merged[key] = _merge(merged[key], value)
         else:
-            merged[key] = _deepcopy(value)
+            merged[key] = copy.deepcopy(value)
     return merged
 
 

@@ -26,7 +26,7 @@ LAYERS = {
     "physics": ["brdf", "rig", "svbrdf", "patterns", "sensor"],
     "renderers": ["render", "relight"],
     "method": ["importance", "separation", "nets", "losses", "acquisition", "training", "data", ""],
-    "applications": ["evaluation", "metrics", "viewing", "export", "data.preview", "capture", "cli", "demo",
+    "applications": ["evaluation", "metrics", "viewing", "export", "data.preview", "data.encoding", "capture", "cli", "demo",
                      "__main__", "nets.__main__"],
 }
 #: The Mitsuba plugins (package mitsvbrdf_plugins, folder plugins/) belong to the renderers.

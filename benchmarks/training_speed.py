@@ -15,7 +15,8 @@ split into:
 * ``backward``: autograd through the networks (and, in stages 1-2, through the renderer to G_l);
 * ``optimizer``: gradient clipping and the Adam update.
 
-The parts are timed by wrapping the stage's own methods (``capture``, ``lpdf``) for the duration of
+The parts are timed by wrapping the stage's ``capture`` and the L_pdf function the acquisition
+layer's ``predict`` calls (``mitsvbrdf.acquisition.importance``) for the duration of
 the measurement, so they are what training runs. Each stage starts from the previous stage's
 networks after these few steps (the speed does not depend on the weights). Writes docs/benchmarks/training_speed_<device>.md
 (+ CSV).
@@ -31,6 +32,7 @@ from pathlib import Path
 
 import torch
 
+from mitsvbrdf import acquisition
 from mitsvbrdf.training import Trainer, load_config
 from mitsvbrdf.training.chain import load_chain
 from mitsvbrdf.training.trainer import step_seed
@@ -44,7 +46,7 @@ class PartTimer:
     """Accumulates wall time per part; ``sync`` makes GPU timings honest."""
 
     def __init__(self, device: torch.device):
-        self.device, self.seconds = device, defaultdict(float)
+        self.device, self.seconds, self.restore = device, defaultdict(float), []
 
     def sync(self) -> None:
         if self.device.type == "cuda":
@@ -62,6 +64,12 @@ class PartTimer:
             return out
 
         setattr(obj, name, timed)
+        self.restore.append((obj, name, inner))
+
+    def unwrap(self) -> None:
+        for obj, name, inner in reversed(self.restore):
+            setattr(obj, name, inner)
+        self.restore.clear()
 
 
 def timed_steps(trainer: Trainer, steps: int, start: int) -> dict[str, float]:
@@ -69,8 +77,7 @@ def timed_steps(trainer: Trainer, steps: int, start: int) -> dict[str, float]:
     timer = PartTimer(trainer.device)
     stage = trainer.stage
     timer.wrap(stage, "capture", "render")
-    if hasattr(stage, "lpdf"):
-        timer.wrap(stage, "lpdf", "L_pdf")
+    timer.wrap(acquisition, "importance", "L_pdf")  # what acquisition.predict calls for L_pdf
     clip = trainer.cfg.train.grad_clip
     total_fwd = 0.0
     for step in range(start, start + steps):
@@ -95,6 +102,7 @@ def timed_steps(trainer: Trainer, steps: int, start: int) -> dict[str, float]:
         total_fwd += t2 - t1
         timer.seconds["backward"] += t3 - t2
         timer.seconds["optimizer"] += t4 - t3
+    timer.unwrap()
     timer.seconds["nets fwd"] = total_fwd - timer.seconds["render"] - timer.seconds["L_pdf"]
     return {p: timer.seconds[p] / steps for p in PARTS}
 

@@ -145,6 +145,7 @@ def test_chain_splits_its_budget_by_shares_and_ships_the_last_export(tmp_path):
     assert set(torch.load(chain.out / "networks.pt", weights_only=True)) >= {"l0", "initializer", "lighting"}
     written = json.loads((chain.out / "chain.json").read_text())
     assert written["commit"] and written["command"] and written["time_budget_s"] == 4.0
+    assert "/" not in written["command"].split()[0]  # the program's name, not this machine's path to it
 
 
 def test_chain_stage_starts_from_the_previous_stages_export(tmp_path):

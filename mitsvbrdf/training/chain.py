@@ -28,6 +28,7 @@ chain's wall time (the provenance a shipped export needs).
 from __future__ import annotations
 
 import json
+import shlex
 import shutil
 import subprocess
 import sys
@@ -38,7 +39,7 @@ from pathlib import Path
 
 import torch
 
-from .config import ConfigError, load_config, parse_duration
+from .config import ConfigError, load_config, parse_duration, parse_override
 from .trainer import Trainer
 
 #: ``train.steps`` of a budgeted stage whose config does not cap it: the budget ends it.
@@ -117,6 +118,15 @@ def _checkpoint_state(folder: Path) -> dict:
             "step": int(ck["step"]), "last": ck["history"][-1] if ck.get("history") else {}}
 
 
+def _command() -> str:
+    """The command line as a user would type it, without the machine's paths: ``python -m`` gives
+    argv[0] as the absolute path of the package's __main__.py, recorded as the package's name
+    (``mitsvbrdf ...`` for the CLI); a script is recorded by its file name."""
+    argv0 = Path(sys.argv[0]) if sys.argv and sys.argv[0] else Path("python")
+    prog = argv0.parent.name if argv0.name == "__main__.py" else argv0.name
+    return " ".join([prog, *(shlex.quote(a) for a in sys.argv[1:])])
+
+
 def _commit() -> str:
     try:
         root = Path(__file__).resolve().parents[2]
@@ -139,13 +149,13 @@ def run_chain(chain: Chain, *, progress: bool = True, overwrite: bool = False, e
         shutil.rmtree(chain.out)
     chain.out.mkdir(parents=True, exist_ok=True)
     wall0 = time.perf_counter()
-    record = {"command": " ".join(sys.argv), "commit": _commit(), "chain": str(chain.source or ""),
+    record = {"command": _command(), "commit": _commit(), "chain": str(chain.source or ""),
               "time_budget_s": chain.time_budget, "stages": []}
     previous: Path | None = None
+    spent = 0.0  # loop time of the stages before this one (all finished when it is reached)
     for k, st in enumerate(chain.stages):
         folder = stage_dir(chain, k)
         state = _checkpoint_state(folder)
-        spent = sum(_checkpoint_state(stage_dir(chain, j))["elapsed"] for j in range(k))
         left = max(chain.time_budget - spent, 0.0)
         share = st.share / sum(s.share for s in chain.stages[k:])
         budget = max(left * share, state["elapsed"]) if state["finished"] else left * share
@@ -154,7 +164,8 @@ def run_chain(chain: Chain, *, progress: bool = True, overwrite: bool = False, e
         if previous is not None:
             overrides.append(f'pretrained.networks="{previous / "networks.pt"}"')
         cfg = load_config(st.config, overrides)
-        capped = any(o.startswith("train.steps=") for o in [*chain.overrides, *st.overrides, *(extra or [])])
+        capped = any(parse_override(o)[0] == ["train", "steps"] for o in [*chain.overrides, *st.overrides,
+                                                                          *(extra or [])])
         if not capped:
             cfg.train.steps = UNCAPPED_STEPS
         if not state["finished"]:
@@ -170,6 +181,7 @@ def run_chain(chain: Chain, *, progress: bool = True, overwrite: bool = False, e
         record["stages"].append({"stage": cfg.stage, "config": st.config.name, "out": str(folder), "share": st.share,
                                  "budget_s": round(budget, 1), "steps": state["step"],
                                  "elapsed_s": round(state["elapsed"], 1), "last": state.get("last", {})})
+        spent += state["elapsed"]
         previous = folder
     shutil.copyfile(previous / "networks.pt", chain.out / "networks.pt")
     record["wall_s_this_invocation"] = round(time.perf_counter() - wall0, 1)

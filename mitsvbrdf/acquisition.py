@@ -30,7 +30,7 @@ tensors without the batch dimension.
 from __future__ import annotations
 
 import math
-from dataclasses import asdict, dataclass
+from dataclasses import asdict, dataclass, fields
 from pathlib import Path
 from typing import Callable
 
@@ -44,8 +44,9 @@ from .nets import NAFEncoder, NetworkFileError, network_from_record
 from .nets.io import read_network_file
 from .patterns import prepend_pattern
 from .render import render
+from .render.quadrature import QuadratureSettings
 from .rig import Rig
-from .separation import separate_specular
+from .separation import diffuse_irradiance, separate_specular
 from .svbrdf import SVBRDF
 
 #: simulate() seeds capture step k (1..99) with seed * 100 + k, a UInt32.
@@ -75,11 +76,18 @@ class AcquisitionSettings:
             acquisitions of such networks use the initializer's estimate, which it stands for).
         lpdf_stride: texel stride of the L_pdf quadrature (4: 0.9 s for 256 x 256 on 2 cores).
         use_spec: whether G_sc takes I^spec besides the images.
+        lpdf_cell_order, lpdf_lobe_grid: the L_pdf quadrature's orders
+            (:class:`~mitsvbrdf.render.quadrature.QuadratureSettings`); the defaults are the
+            renderer's. L_pdf's error is dominated by the texel stride, not by these: at 64 px,
+            stride 4, orders (1, 16) cost a third of (2, 32) for the same error
+            (``benchmarks/lpdf_cost.py``, docs/benchmarks/lpdf_cost.md).
     """
 
     lpdf_from: str = "initializer"
     lpdf_stride: int = 4
     use_spec: bool = True
+    lpdf_cell_order: int = 2
+    lpdf_lobe_grid: int = 32
 
     LPDF_SOURCES = ("initializer", "uniform", "ground_truth")
 
@@ -90,6 +98,14 @@ class AcquisitionSettings:
             raise MitsvbrdfError(f"lpdf_stride must be an integer >= 1, got {self.lpdf_stride!r}")
         if not isinstance(self.use_spec, bool):
             raise MitsvbrdfError(f"use_spec must be true or false, got {self.use_spec!r}")
+        for name, lo in (("lpdf_cell_order", 1), ("lpdf_lobe_grid", 0)):
+            v = getattr(self, name)
+            if isinstance(v, bool) or not isinstance(v, int) or v < lo:
+                raise MitsvbrdfError(f"{name} must be an integer >= {lo}, got {v!r}")
+
+    @property
+    def lpdf_quadrature(self) -> QuadratureSettings:
+        return QuadratureSettings(cell_order=self.lpdf_cell_order, lobe_grid=self.lpdf_lobe_grid)
 
     def record(self) -> dict:
         """Plain data for a networks file (what :meth:`from_record` reads back)."""
@@ -102,7 +118,7 @@ class AcquisitionSettings:
         rec = {} if rec is None else rec
         if not isinstance(rec, dict):
             raise NetworkFileError(f"{where}: acquisition settings must be a table, got {type(rec).__name__}")
-        unknown = sorted(set(rec) - {"lpdf_from", "lpdf_stride", "use_spec"})
+        unknown = sorted(set(rec) - {f.name for f in fields(cls)})
         if unknown:
             raise NetworkFileError(f"{where}: unknown acquisition settings {unknown}")
         try:
@@ -173,7 +189,8 @@ def predict(initializer: torch.nn.Module, lighting: torch.nn.Module, i0: Tensor,
                 if ground_truth is None:
                     raise MitsvbrdfError("lpdf_from = 'ground_truth' needs the ground-truth material")
                 source = ground_truth
-            lpdf = importance(source.normal, source.roughness, rig, texel_stride=settings.lpdf_stride)
+            lpdf = importance(source.normal, source.roughness, rig, texel_stride=settings.lpdf_stride,
+                              settings=settings.lpdf_quadrature)
     out = lighting(i0, lpdf)
     return Prediction(out.patterns.clamp(0, 1), lpdf, initial, getattr(out, "normal", None),
                       getattr(out, "roughness", None))

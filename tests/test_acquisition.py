@@ -10,7 +10,9 @@ import mitsvbrdf as ms
 from mitsvbrdf.acquisition import (SETTINGS_KEY, AcquisitionSettings, AdaptiveAcquisition, load_adaptive,
                                    load_baseline, maps_to_svbrdf, predict)
 from mitsvbrdf.errors import MitsvbrdfError
+from mitsvbrdf.importance import importance
 from mitsvbrdf.nets import NetworkFileError, network_record
+from mitsvbrdf.render.quadrature import QuadratureSettings
 from mitsvbrdf.training import STAGES, RenderSettings
 
 from conftest import textured_material
@@ -115,7 +117,8 @@ def test_ground_truth_lpdf_needs_the_ground_truth(rig):
         predict(MeanInitializer(), LpdfLighting(), i0, rig, AcquisitionSettings(lpdf_from="ground_truth"))
 
 
-@pytest.mark.parametrize("bad", [{"lpdf_from": "oracle"}, {"lpdf_stride": 0}, {"use_spec": "yes"}])
+@pytest.mark.parametrize("bad", [{"lpdf_from": "oracle"}, {"lpdf_stride": 0}, {"use_spec": "yes"},
+                                 {"lpdf_cell_order": 0}, {"lpdf_lobe_grid": -1}, {"lpdf_lobe_grid": 1.5}])
 def test_bad_settings_are_refused(bad):
     with pytest.raises(MitsvbrdfError):
         AcquisitionSettings(**bad)
@@ -144,6 +147,23 @@ def test_an_export_is_acquired_with_the_settings_it_was_trained_with(rig, tmp_pa
     stage = _stage(rig, lighting_width=4, svbrdf_width=4, lpdf_from="uniform", lpdf_stride=8, use_spec=False)
     acq = load_adaptive(_save(tmp_path / "n.pt", stage), rig)
     assert acq.settings == AcquisitionSettings("uniform", 8, False)
+
+
+def test_an_export_carries_its_lpdf_quadrature(rig, tmp_path):
+    stage = _stage(rig, lighting_width=4, svbrdf_width=4, lpdf_cell_order=1, lpdf_lobe_grid=16)
+    acq = load_adaptive(_save(tmp_path / "n.pt", stage), rig)
+    assert acq.settings.lpdf_quadrature == QuadratureSettings(cell_order=1, lobe_grid=16)
+
+
+def test_predict_computes_lpdf_with_the_settings_quadrature(rig):
+    i0 = torch.rand(2, 3, 16, 16)
+    coarse = AcquisitionSettings(lpdf_stride=2, lpdf_cell_order=1, lpdf_lobe_grid=4)
+    got = predict(MeanInitializer(), LpdfLighting(), i0, rig, coarse).lpdf
+    est = maps_to_svbrdf(MeanInitializer()(i0))
+    want = importance(est.normal, est.roughness, rig, texel_stride=2, settings=coarse.lpdf_quadrature)
+    assert torch.equal(got, want)
+    assert not torch.equal(got, predict(MeanInitializer(), LpdfLighting(), i0, rig,
+                                        AcquisitionSettings(lpdf_stride=2)).lpdf)
 
 
 def test_an_export_without_settings_keeps_the_old_defaults(rig, tmp_path):

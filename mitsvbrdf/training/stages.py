@@ -159,7 +159,10 @@ class AdaptiveModel:
     svbrdf_blocks: list[int] = field(default_factory=lambda: [1, 1, 1])
     lpdf_from: str = "initializer"   # "initializer" | "ground_truth" | "uniform" (Diff. Init. ablation)
     lpdf_stride: int = 4
+    lpdf_cell_order: int = 2         # L_pdf quadrature orders (AcquisitionSettings)
+    lpdf_lobe_grid: int = 32
     use_spec: bool = True            # G_sc's second encoder on I^spec (False: Table 3's "Adaptive")
+    diffuse_ratio: bool = False      # G_sc also sees each image over its L^d (not in the paper; docs/training.md)
 
 
 @dataclass
@@ -192,7 +195,7 @@ class AdaptiveStage(TrainingStage):
         cfg = self.model_cfg
         # G_sc (built here or pretrained) knows whether it takes I^spec; stage 1 has none
         use_spec = self.nets["svbrdf"].use_spec if "svbrdf" in self.nets else cfg.use_spec
-        return AcquisitionSettings(cfg.lpdf_from, cfg.lpdf_stride, use_spec)
+        return AcquisitionSettings(cfg.lpdf_from, cfg.lpdf_stride, use_spec, cfg.lpdf_cell_order, cfg.lpdf_lobe_grid)
 
     def adaptive_captures(self, batch: SVBRDF, seed: int):
         """The acquisition's steps (:func:`mitsvbrdf.acquisition.predict`) with this stage's

@@ -200,8 +200,13 @@ def reconstruct_maps(reconstructor: torch.nn.Module, images: Tensor, patterns: T
                      use_spec: bool) -> Tensor:
     """G_sc on captures (B, P, 3, H, W) under ``patterns`` (B, P, 3, h, w) or (P, 3, h, w):
     ``reconstructor(images, I^spec)`` with I^spec separated from the images (Eq. 5), or
-    ``reconstructor(images, None)`` without ``use_spec``. Returns its (B, 10, H, W) encoded maps."""
-    return reconstructor(images, separate_specular(images, patterns, rig) if use_spec else None)
+    ``reconstructor(images, None)`` without ``use_spec``; a G_sc built with ``diffuse_ratio`` also
+    gets the patterns' irradiance L^d, which I^spec shares. Returns its (B, 10, H, W) encoded maps."""
+    ratio = getattr(reconstructor, "diffuse_ratio", False)
+    ld = diffuse_irradiance(patterns.to(images.device, images.dtype), rig, images.shape[-2:]) \
+        if ratio or use_spec else None
+    spec = separate_specular(images, patterns, rig, irradiance=ld) if use_spec else None
+    return reconstructor(images, spec, irradiance=ld) if ratio else reconstructor(images, spec)
 
 
 def _check_use_spec(reconstructor: torch.nn.Module, use_spec: bool, where: str = "G_sc") -> None:

@@ -75,12 +75,13 @@ def pair_indices(p: int) -> list[tuple[int, int]]:
 
 
 def separate_specular(images: Tensor, patterns: Tensor, rig: Rig, *,
-                      settings: QuadratureSettings | None = None) -> Tensor:
+                      settings: QuadratureSettings | None = None, irradiance: Tensor | None = None) -> Tensor:
     """I^spec of Eq. 5 for every pair of images.
 
     Args:
         images: (B, P, 3, H, W) or (P, 3, H, W) linear renders/captures under ``patterns``.
         patterns: (P, 3, h, w) or (B, P, 3, h, w) drive values.
+        irradiance: their L^d (:func:`diffuse_irradiance`) when the caller has it already.
     Returns:
         (B, P(P-1)/2, 3, H, W) (or without B), pairs ordered as :func:`pair_indices`.
     """
@@ -94,7 +95,8 @@ def separate_specular(images: Tensor, patterns: Tensor, rig: Rig, *,
     bad = int((~torch.isfinite(imgs.detach())).sum())
     if bad:  # Eq. 5 would carry them into every pair's I^spec
         raise ImageError(f"separate_specular: the images have {bad} NaN/Inf values")
-    ld = diffuse_irradiance(patterns.to(imgs.device, imgs.dtype), rig, imgs.shape[-2:], settings=settings)
+    ld = irradiance if irradiance is not None else \
+        diffuse_irradiance(patterns.to(imgs.device, imgs.dtype), rig, imgs.shape[-2:], settings=settings)
     if ld.ndim == 4:
         ld = ld.unsqueeze(0)
     i, j = map(list, zip(*pair_indices(P))) if P > 1 else ([], [])

@@ -4,7 +4,8 @@ import pytest
 import torch
 
 from mitsvbrdf.nets import (Initializer, LearnedPattern, LightingPredictor, NAFBlock, NetworkFileError, PointPredictor,
-                            SVBRDFPredictor, load_network, parameter_count, save_network)
+                            SVBRDFPredictor, diffuse_ratio, load_network, parameter_count, save_network,
+                            with_diffuse_ratio)
 
 
 @pytest.fixture(autouse=True)
@@ -99,3 +100,29 @@ def test_corrupt_or_missing_network_file_is_refused(tmp_path):
         load_network(tmp_path / "bad.pt")
     with pytest.raises(NetworkFileError, match="no such network file"):
         load_network(tmp_path / "none.pt")
+
+
+def test_svbrdf_predictor_with_diffuse_ratio_refuses_to_run_without_irradiance():
+    with pytest.raises(ValueError, match="irradiance"):
+        SVBRDFPredictor(width=4, use_spec=False, diffuse_ratio=True)(torch.rand(1, 5, 3, 32, 32))
+
+
+def test_widened_predictor_computes_what_the_plain_one_computes():
+    plain = SVBRDFPredictor(width=4)
+    for p in plain.parameters():  # a trained-looking net: fresh NAFBlocks would be the identity
+        p.data.normal_(0, 0.1)
+    wide = with_diffuse_ratio(plain)
+    images, spec = torch.rand(2, 5, 3, 32, 32), torch.randn(2, 10, 3, 32, 32) * 1e-3
+    irradiance = torch.rand(2, 5, 3, 32, 32)
+    assert wide.diffuse_ratio and wide.config["diffuse_ratio"]
+    assert torch.allclose(wide(images, spec, irradiance), plain(images, spec), atol=1e-6)
+    assert with_diffuse_ratio(wide) is wide
+
+
+def test_diffuse_ratio_stays_finite_where_pattern_and_image_are_black():
+    images = torch.zeros(1, 5, 3, 8, 8, requires_grad=True)
+    irradiance = torch.zeros(1, 5, 3, 8, 8, requires_grad=True)
+    r = diffuse_ratio(images, irradiance)
+    r.sum().backward()
+    assert torch.equal(r, torch.zeros_like(r))
+    assert torch.isfinite(images.grad).all() and torch.isfinite(irradiance.grad).all()

@@ -5,6 +5,7 @@ import torch
 
 import mitsvbrdf as ms
 from mitsvbrdf import patterns as pt
+from mitsvbrdf.nets.nafnet import RATIO_FLOOR, diffuse_ratio
 
 from conftest import flat_material, textured_material
 
@@ -57,3 +58,17 @@ def test_unbatched_images_and_pair_order(rig):
 def test_mismatched_image_and_pattern_counts_are_a_clear_error(rig):
     with pytest.raises(ValueError, match="patterns"):
         ms.separate_specular(torch.zeros(1, 3, 3, 4, 4), pt.monograd(), rig)
+
+
+def test_diffuse_ratio_of_a_flat_lambertian_material_is_its_log_albedo_anywhere_under_the_lcd(rig):
+    # log((kd L + f) / (L + f)) differs from log kd by at most f / (kd L): the bound per texel
+    kd = 0.1 + 0.8 * torch.rand(1, 3, 16, 16, generator=torch.Generator().manual_seed(3))
+    m = flat_material(16, specular=0.0)
+    m = ms.SVBRDF(normal=m.normal, diffuse=kd, roughness=m.roughness, specular=m.specular)
+    pats = pt.monograd()
+    img = ms.render(m, pats, rig, lobes="diffuse")
+    ld = ms.diffuse_irradiance(pats, rig, 16)
+    r = diffuse_ratio(img, ld)
+    bound = RATIO_FLOOR / (kd[:, None] * ld[None]) + 1e-5
+    assert ((r - kd.log()[:, None]).abs() <= bound).all()
+    assert (bound < 0.001).float().mean() > 0.9  # and tight on most texels

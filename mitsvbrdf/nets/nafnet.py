@@ -84,3 +84,21 @@ def normalize_images(x: Tensor, scale: float = 0.05) -> Tensor:
     under one white pattern, so typical values land near 1 while highlights 100x brighter stay
     below 7 (and gradients stay finite at 0: log1p is smooth there)."""
     return torch.log1p(x.clamp_min(0.0) / scale)
+
+
+#: linear radiance added to image and irradiance in :func:`diffuse_ratio`: about 1e-4 of a grey
+#: texel under a white pattern (L^d ~ 0.05-0.16 in the default rig), so that the ratio's bias
+#: f / (kd L^d) stays below 0.1% where a pattern lights a texel; 1e-3 biased it by a few per cent,
+#: as much as the normal signal it is there to expose.
+RATIO_FLOOR = 1e-5
+
+
+def diffuse_ratio(images: Tensor, irradiance: Tensor, floor: float = RATIO_FLOOR) -> Tensor:
+    """Network input log((I + f) / (L^d + f)): each image over its pattern's flat-Lambertian
+    irradiance L^d (Eq. 4), both (B, P, 3, H, W) (L^d may lack B). For a Lambertian texel with a
+    flat normal this is log kd wherever it is lit, whatever its position under the LCD, so the
+    differences between patterns that a linear layer forms are the normal's (and the specular
+    lobe's) doing. The raw images put that few-per-cent signal on top of a position-dependent
+    ramp the network would have to learn first. ``floor`` keeps unlit texels finite: where both
+    are ~0 the ratio is ~0, and it is bounded by log(1 / floor) ~ 11.5 in magnitude for values <= 1."""
+    return torch.log((images.clamp_min(0.0) + floor) / (irradiance.clamp_min(0.0) + floor))

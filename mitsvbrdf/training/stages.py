@@ -246,7 +246,7 @@ class Stage2(AdaptiveStage):
     def __init__(self, model: AdaptiveModel, loss: AdaptiveLoss, render_settings: RenderSettings, rig: Rig):
         super().__init__(model, loss, render_settings, rig)
         self.nets["svbrdf"] = SVBRDFPredictor(5, model.svbrdf_width, tuple(model.svbrdf_blocks),
-                                              use_spec=model.use_spec)
+                                              use_spec=model.use_spec, diffuse_ratio=model.diffuse_ratio)
 
     def forward(self, batch: SVBRDF, seed: int) -> dict[str, Tensor]:
         patterns, images, losses = self.adaptive_captures(batch, seed)
@@ -310,8 +310,10 @@ class FixedStage(TrainingStage):
             count = pats.shape[0]
             self.nets["patterns"] = PatternSet(count, rig.lcd_cells, learnable=model.learn_patterns)
             self.nets["patterns"].set(pats)
+        if model.light == "flash" and model.diffuse_ratio:
+            raise MitsvbrdfError("model.light = 'flash' has no LCD patterns: diffuse_ratio must be false")
         self.nets["svbrdf"] = SVBRDFPredictor(count, model.svbrdf_width, tuple(model.svbrdf_blocks),
-                                              use_spec=model.use_spec)
+                                              use_spec=model.use_spec, diffuse_ratio=model.diffuse_ratio)
 
     def acquisition_settings(self) -> AcquisitionSettings:
         return AcquisitionSettings(use_spec=self.nets["svbrdf"].use_spec)

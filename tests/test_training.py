@@ -203,6 +203,50 @@ def test_pretrained_networks_with_wrong_names_are_refused(rig):
         stage.load_pretrained({"l0": {}})
 
 
+def _stage2(rig, **model):
+    S = STAGES["stage2"]
+    return S(S.Model(lighting_width=4, **{"svbrdf_width": 4, **model}), S.Loss(), RenderSettings("mitsuba", 1), rig)
+
+
+def _records(stage) -> dict:
+    from mitsvbrdf.nets import network_record
+
+    for p in stage.nets["svbrdf"].parameters():  # unlike a fresh net's
+        p.data.normal_(0, 0.3)
+    return {n: network_record(net) for n, net in stage.nets.items()}
+
+
+def test_warm_start_starts_the_networks_a_stage_builds_from_the_files(rig):
+    records = _records(_stage2(rig))
+    stage = _stage2(rig, svbrdf_width=8)
+    stage.warm_start(records)
+    net = stage.nets["svbrdf"]
+    assert net.config["width"] == 4  # the file's architecture wins over the config's
+    assert all(torch.equal(v, records["svbrdf"]["state"][k]) for k, v in net.state_dict().items())
+    assert all(p.requires_grad for p in net.parameters())
+
+
+def test_warm_start_widens_a_plain_svbrdf_predictor_when_the_config_asks_for_diffuse_ratio(rig):
+    records = _records(_stage2(rig))
+    stage = _stage2(rig, diffuse_ratio=True)
+    stage.warm_start(records)
+    assert stage.nets["svbrdf"].diffuse_ratio
+    out = stage(generate(1, size=32, seed=5), seed=0)
+    assert torch.isfinite(out["loss"])
+
+
+def test_warm_start_from_a_file_without_the_stages_networks_is_a_clear_error(rig):
+    records = _records(_stage2(rig))
+    with pytest.raises(ms.MitsvbrdfError, match=r"warm_start: the file has none of the networks stage 'stage2'"):
+        _stage2(rig).warm_start({"l0": records["l0"]})
+
+
+def test_missing_warm_start_file_is_a_clear_error(tmp_path):
+    with pytest.raises(TrainingError, match="warm_start"):
+        Trainer(tiny("fixed", tmp_path, extra=[f'pretrained.warm_start="{tmp_path / "none.pt"}"'], svbrdf_width=4),
+                progress=False)
+
+
 # ---- the driver ------------------------------------------------------------------------------
 
 

@@ -94,6 +94,9 @@ class TrainConfig:
 @dataclass
 class PretrainedConfig:
     networks: str = ""
+    # networks.pt whose networks start those this stage would build from scratch, where it has them
+    # (continuing a chain from an export: G_sc of stage 2 from the shipped weights)
+    warm_start: str = ""
 
 
 @dataclass

@@ -31,7 +31,7 @@ from ..acquisition import AcquisitionSettings, predict, reconstruct_maps
 from ..errors import MitsvbrdfError
 from ..losses import PLAIN_MAP_WEIGHTS, importance_consistency_loss, inverse_importance_loss, map_l1
 from ..nets import (Initializer, LearnedPattern, LightingPredictor, PatternSet, PointPredictor, SVBRDFPredictor,
-                    network_from_record)
+                    network_from_record, with_diffuse_ratio)
 from ..patterns import load_patterns, prepend_pattern
 from ..relight import FlashLight
 from ..render import render
@@ -78,12 +78,29 @@ class TrainingStage(nn.Module):
             raise MitsvbrdfError(f"stage {self.name!r} needs pretrained networks {missing}; the file has "
                                  f"{sorted(records)}")
         for n, frozen in self.PRETRAINED.items():
-            net = network_from_record(records[n], f"pretrained network {n!r}")
-            if n in self.nets and type(net) is not type(self.nets[n]):
-                raise MitsvbrdfError(f"pretrained network {n!r} is a {type(net).__name__}, "
-                                     f"stage {self.name!r} needs a {type(self.nets[n]).__name__}")
-            net.requires_grad_(not frozen)
-            self.nets[n] = net
+            self._adopt(n, records[n], frozen)
+
+    def warm_start(self, records: dict[str, dict]) -> None:
+        """Start the networks this stage would train from scratch from an export's, where it has
+        them (continuing a chain from shipped weights); the file's architecture then wins over the
+        config's, and they stay trainable."""
+        scratch = [n for n in self.nets if n not in self.PRETRAINED]
+        started = [n for n in scratch if n in records]
+        if not started:
+            raise MitsvbrdfError(f"pretrained.warm_start: the file has none of the networks stage {self.name!r} "
+                                 f"trains ({sorted(scratch)}); it has {sorted(records)}")
+        for n in started:
+            self._adopt(n, records[n], frozen=False)
+
+    def _adopt(self, name: str, record: dict, frozen: bool) -> None:
+        net = network_from_record(record, f"pretrained network {name!r}")
+        if name in self.nets and type(net) is not type(self.nets[name]):
+            raise MitsvbrdfError(f"pretrained network {name!r} is a {type(net).__name__}, "
+                                 f"stage {self.name!r} needs a {type(self.nets[name]).__name__}")
+        if isinstance(net, SVBRDFPredictor) and getattr(self.model_cfg, "diffuse_ratio", False):
+            net = with_diffuse_ratio(net)  # trained without the option: the new inputs start at zero
+        net.requires_grad_(not frozen)
+        self.nets[name] = net
 
     def acquisition_settings(self) -> AcquisitionSettings | None:
         """How an acquisition must use this stage's networks (saved with them by the export);
@@ -281,6 +298,7 @@ class FixedModel:
     svbrdf_width: int = 16
     svbrdf_blocks: list[int] = field(default_factory=lambda: [1, 1, 1])
     use_spec: bool = False
+    diffuse_ratio: bool = False
 
 
 @dataclass

@@ -154,7 +154,7 @@ class Trainer:
                                   cfg.render.ltc_mode)
         cls = STAGES[cfg.stage]
         self.stage: TrainingStage = cls(cfg.model, cfg.loss, settings, rig)
-        if cls.PRETRAINED:
+        if cls.PRETRAINED or cfg.pretrained.warm_start:
             self._load_pretrained()
         self.stage.to(self.device)
         groups = [g for g in self.stage.param_groups(cfg.train.lr) if g["params"]]
@@ -192,11 +192,18 @@ class Trainer:
         return self.out / "checkpoint.pt"
 
     def _load_pretrained(self) -> None:
-        path = Path(self.cfg.pretrained.networks)
-        if not self.cfg.pretrained.networks or not path.exists():
-            raise TrainingError(f"stage {self.cfg.stage!r} starts from an earlier stage's networks: set "
-                                f"pretrained.networks (now {str(path)!r}, which does not exist)")
-        self.stage.load_pretrained(read_network_file(path, "networks"))
+        pre = self.cfg.pretrained
+        if self.stage.PRETRAINED:
+            path = Path(pre.networks)
+            if not pre.networks or not path.exists():
+                raise TrainingError(f"stage {self.cfg.stage!r} starts from an earlier stage's networks: set "
+                                    f"pretrained.networks (now {str(path)!r}, which does not exist)")
+            self.stage.load_pretrained(read_network_file(path, "networks"))
+        if pre.warm_start:
+            path = Path(pre.warm_start)
+            if not path.exists():
+                raise TrainingError(f"pretrained.warm_start: {str(path)!r} does not exist")
+            self.stage.warm_start(read_network_file(path, "networks"))
 
     def _load_checkpoint(self) -> None:
         path = self.checkpoint_path

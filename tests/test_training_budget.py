@@ -93,6 +93,13 @@ def test_budgeted_run_ends_when_the_budget_is_spent_and_exports(tmp_path):
     assert ck["finished"] and ck["elapsed"] == pytest.approx(t.elapsed)
 
 
+def test_progress_of_a_budgeted_run_counts_seconds_of_its_budget_and_shows_the_step(tmp_path, capsys):
+    Trainer(budgeted(tmp_path, 3600.0, steps=3), progress=True).run()
+    err = capsys.readouterr().err
+    assert "/3600" in err and "step=3" in err
+    assert "/3 " not in err  # not the step bound
+
+
 def test_steps_stay_an_upper_bound_under_a_budget(tmp_path):
     t = Trainer(budgeted(tmp_path, 3600.0, steps=3), progress=False)
     t.run()

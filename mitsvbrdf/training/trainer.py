@@ -337,7 +337,11 @@ class Trainer:
 
         cfg = self.cfg.train
         old = {s: signal.signal(s, self._handle) for s in (signal.SIGINT, signal.SIGTERM)}
-        bar = tqdm(total=cfg.steps, initial=self.step, desc=self.cfg.stage, disable=not self.progress)
+        # a budgeted run's bar counts seconds of its budget (its steps are only an upper bound)
+        budgeted = cfg.time_budget > 0
+        bar = tqdm(total=round(cfg.time_budget, 1) if budgeted else cfg.steps,
+                   initial=round(min(self.elapsed, cfg.time_budget), 1) if budgeted else self.step,
+                   unit="s" if budgeted else "it", desc=self.cfg.stage, disable=not self.progress)
         t0, last = time.perf_counter(), {}
         t_log, step_log = t0, self.step
         elapsed0 = self.elapsed
@@ -357,7 +361,7 @@ class Trainer:
                 self.step += 1
                 now = time.perf_counter()
                 self.elapsed = elapsed0 + (now - t0)
-                bar.update(1)
+                bar.update(round(min(self.elapsed, cfg.time_budget) - bar.n, 3) if budgeted else 1)
                 if self.step % cfg.log_every == 0 or self.step == cfg.steps or self.budget_spent():
                     rate = (self.step - step_log) / max(now - t_log, 1e-9)
                     t_log, step_log = now, self.step
@@ -365,7 +369,7 @@ class Trainer:
                             "lr": self.opt.param_groups[0]["lr"], "it_per_s": round(rate, 3),
                             "seconds": round(self.elapsed, 2)}
                     self.history.append(last)
-                    bar.set_postfix(loss=f"{last['loss']:.4f}")
+                    bar.set_postfix(**({"step": self.step} if budgeted else {}), loss=f"{last['loss']:.4f}")
                 if self.step % cfg.checkpoint_every == 0:
                     self.save_checkpoint()
                 if self._stop or (self.stop_after is not None and self.step >= self.stop_after):

@@ -55,9 +55,9 @@ RUNS = {
 }
 
 
-def train(name: str, out: Path, args) -> float:
-    """Train run ``name`` into ``out`` (resuming an interrupted run); returns its wall seconds."""
-    overrides, options = RUNS[name]
+def train(name: str, out: Path, args, runs: dict = RUNS) -> float:
+    """Train run ``name`` of ``runs`` into ``out`` (resuming an interrupted run); returns its wall seconds."""
+    overrides, options = runs[name]
     sets = [f"out=\"{out}\"", f"data.size={args.size}", f"model.svbrdf_width={args.width}",
             f"train.steps={args.steps}", "train.batch=4", f"seed={getattr(args, 'seed', 4)}",
             f"train.checkpoint_every={min(100, args.steps)}", f"train.log_every={min(10, args.steps)}", *overrides]
@@ -75,7 +75,7 @@ def train(name: str, out: Path, args) -> float:
     return time.perf_counter() - t0
 
 
-def probe_seconds_per_step(name: str, args) -> float:
+def probe_seconds_per_step(name: str, args, runs: dict = RUNS) -> float:
     """Seconds per step of run ``name`` without training it: two short runs (5 and 20 steps) in a
     scratch folder, after a warm-up run that fills the kernel caches; the difference of the
     training loop's own clocks (metrics.csv ``seconds``, start-up excluded) over the 15 extra steps."""
@@ -87,7 +87,7 @@ def probe_seconds_per_step(name: str, args) -> float:
     for steps in (2, 5, 20):
         out = args.work / f"{name}-probe-{steps}"
         shutil.rmtree(out, ignore_errors=True)
-        train(name, out, Namespace(**{**vars(args), "steps": steps}))
+        train(name, out, Namespace(**{**vars(args), "steps": steps}), runs)
         clocks.append(float(list(csv.DictReader((out / "metrics.csv").open()))[-1]["seconds"]))
         shutil.rmtree(out, ignore_errors=True)
     return (clocks[2] - clocks[1]) / 15
@@ -108,6 +108,39 @@ def score(networks: Path, materials, rig) -> dict[str, list[float]]:
             for k, v in map_rmse(pred, gt).items():
                 out[f"rmse_{k}"].append(float(v[0]))
     return out
+
+
+def score_rows(scores: dict[str, dict[str, list[float]]], probed: dict[str, float]) -> list[dict]:
+    """One row per run: its seconds per step (when probed) and the mean of each score."""
+    rows = []
+    for name, sc in scores.items():
+        row = {"run": name, "seconds_per_step": round(probed[name], 3) if name in probed else ""}
+        row.update({k: round(sum(v) / len(v), 5) for k, v in sc.items()})
+        rows.append(row)
+        print(row, flush=True)
+    return rows
+
+
+def table_lines(rows: list[dict], keys: list[str], first: str = "run") -> list[str]:
+    return ([f"| {first} | s / step | " + " | ".join(k.replace("rmse_", "") for k in keys) + " |",
+             "|---|---:|" + "---:|" * len(keys)] +
+            [f"| {r['run']} | {r['seconds_per_step']} | " + " | ".join(f"{r[k]:.4f}" for k in keys) + " |"
+             for r in rows])
+
+
+def paired_lines(scores: dict[str, dict[str, list[float]]], base: str, keys: list[str]) -> list[str]:
+    """Table rows of each run's paired difference against ``base`` over the same (seed, material)
+    pairs: mean +- standard error per score."""
+    lines = ["| run | " + " | ".join(k.replace("rmse_", "") for k in keys) + " |", "|---|" + "---:|" * len(keys)]
+    for name, sc in scores.items():
+        if name == base:
+            continue
+        cells = []
+        for k in keys:
+            d = torch.tensor(sc[k]) - torch.tensor(scores[base][k])
+            cells.append(f"{d.mean():+.4f} +- {d.std(unbiased=True) / len(d) ** 0.5:.4f}")
+        lines.append(f"| {name} | " + " | ".join(cells) + " |")
+    return lines
 
 
 def main() -> None:
@@ -171,21 +204,12 @@ def main() -> None:
         for out in done:
             for k, v in score(out / "networks.pt", materials, rig).items():
                 scores[name][k] += v
-    rows = []
-    for name, sc in scores.items():
-        row = {"run": name, "seconds_per_step": round(probed[name], 3) if name in probed else ""}
-        row.update({k: round(sum(v) / len(v), 5) for k, v in sc.items()})
-        rows.append(row)
-        print(row, flush=True)
+    rows = score_rows(scores, probed)
     lines = ["Command: `python benchmarks/training_renderer.py " + " ".join(sys.argv[1:]) + "`", "",
              f"G_sc (fixed MonoGrad, {args.size} px, width {args.width}, {args.steps} steps, batch 4, seeds "
              f"{args.seeds}) trained on captures from each renderer; map RMSE (encoded maps) on {args.eval_n} held-out "
              f"procedural materials whose captures come from the reference renderer, mean over seeds and materials "
-             f"({torch.get_num_threads()} threads for the step times).", "",
-             "| training renderer | s / step | " + " | ".join(k.replace("rmse_", "") for k in keys) + " |",
-             "|---|---:|" + "---:|" * len(keys)]
-    lines += [f"| {r['run']} | {r['seconds_per_step']} | " + " | ".join(f"{r[k]:.4f}" for k in keys) + " |"
-              for r in rows]
+             f"({torch.get_num_threads()} threads for the step times).", "", *table_lines(rows, keys, "training renderer")]
     for name in untrained:
         sec = f"{probed[name]:.3f}" if name in probed else ""
         lines.append(f"| {name} (not trained) | {sec} | " + " | ".join("-" for _ in keys) + " |")
@@ -196,16 +220,7 @@ def main() -> None:
     if "mitsuba-cv" in scores and len(scores) > 1:
         lines += ["", "Paired differences against mitsuba-cv (the default integrator), over the same seeds and "
                       "materials: mean +- standard error; negative means lower error than mitsuba-cv.", "",
-                  "| run | " + " | ".join(k.replace("rmse_", "") for k in keys) + " |", "|---|" + "---:|" * len(keys)]
-        base = scores["mitsuba-cv"]
-        for name, sc in scores.items():
-            if name == "mitsuba-cv":
-                continue
-            cells = []
-            for k in keys:
-                d = torch.tensor(sc[k]) - torch.tensor(base[k])
-                cells.append(f"{d.mean():+.4f} +- {d.std(unbiased=True) / len(d) ** 0.5:.4f}")
-            lines.append(f"| {name} | " + " | ".join(cells) + " |")
+                  *paired_lines(scores, "mitsuba-cv", keys)]
     if rows:
         best = min(rows, key=lambda r: r["rmse_average"])
         lines += ["", f"Lowest average map RMSE: {best['run']} ({best['rmse_average']:.4f})."]

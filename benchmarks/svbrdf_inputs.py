@@ -41,16 +41,6 @@ RUNS = {
 BASE = "images-4spp"
 
 
-def flat_normal_rmse(materials) -> float:
-    """Mean normal RMSE (encoded) of predicting n = (0, 0, 1) everywhere."""
-    vals = []
-    for gt in materials:
-        flat = torch.zeros_like(gt.normal)
-        flat[:, 2] = 1.0
-        vals.append(float(((flat + 1) / 2 - (gt.normal + 1) / 2).square().mean().sqrt()))
-    return sum(vals) / len(vals)
-
-
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
     ap.add_argument("--steps", type=int, default=1000)
@@ -88,7 +78,9 @@ def main() -> None:
     scores = {n: score(args.work / n / "networks.pt", materials, rig) for n in names
               if (args.work / n / "networks.pt").exists()}
     rows = score_rows(scores, probed)
-    flat = flat_normal_rmse(materials)
+    from mitsvbrdf.metrics import flat_normal_rmse
+
+    flat = sum(float(flat_normal_rmse(m)[0]) for m in materials) / len(materials)
     lines = ["Command: `python benchmarks/svbrdf_inputs.py " + " ".join(sys.argv[1:]) + "`", "",
              f"G_sc (fixed MonoGrad, {args.size} px, width {args.width}, {args.steps} steps, batch 4, seed 4, "
              f"normal weight 5) with each run's inputs and capture spp; map RMSE (encoded maps) on {args.eval_n} "

@@ -32,7 +32,7 @@ from tqdm import tqdm
 from .acquisition import Acquisition, check_resolution, size_multiple
 from .data.procedural import generate
 from .errors import MaterialError
-from .metrics import image_rmse, image_ssim, lpips_model, map_rmse
+from .metrics import flat_normal_rmse, image_rmse, image_ssim, lpips_model, map_rmse
 from .patterns import step_edges
 from .relight import point_light_images, random_point_lights
 from .render import render
@@ -168,9 +168,10 @@ def evaluate(methods: dict[str, Method], materials: Iterable[SVBRDF], rig: Rig, 
             figs.append((name, f"figures/{path.name}"))
     bar.close()
     summary = summarize(rows)
-    _write_tables(rows, summary, out, lp_note)
+    flat = float(np.mean([float(flat_normal_rmse(gt)[0]) for gt in materials]))
+    _write_tables(rows, summary, out, lp_note, flat)
     cols = _columns(summary)
-    write_html_page(out / "index.html", "Evaluation", paragraphs=[_caption(summary), lp_note],
+    write_html_page(out / "index.html", "Evaluation", paragraphs=[_caption(summary, flat), lp_note],
                     table=(["Method"] + [HEADS[c] for c in cols],
                            [[s["method"]] + [f"{s[c]:.4f}" for c in cols] for s in summary]),
                     images=figs)
@@ -200,11 +201,13 @@ def _columns(summary: list[dict]) -> list[str]:
     return SUMMARY_COLUMNS + (["lpips"] if "lpips" in summary[0] else [])
 
 
-def _caption(summary: list[dict]) -> str:
-    return f"Map RMSE on encoded maps and re-rendering metrics, mean over {summary[0]['materials']} materials."
+def _caption(summary: list[dict], flat_normal: float) -> str:
+    return (f"Map RMSE on encoded maps and re-rendering metrics, mean over {summary[0]['materials']} materials. "
+            f"A flat normal map scores normal RMSE {flat_normal:.4f} on them: a method near that level has not "
+            f"recovered the normals.")
 
 
-def _write_tables(rows: list[dict], summary: list[dict], out: Path, lp_note: str) -> None:
+def _write_tables(rows: list[dict], summary: list[dict], out: Path, lp_note: str, flat_normal: float) -> None:
     with open(out / "metrics.csv", "w", newline="") as f:
         w = csv.DictWriter(f, fieldnames=list(rows[0]))
         w.writeheader()
@@ -217,7 +220,7 @@ def _write_tables(rows: list[dict], summary: list[dict], out: Path, lp_note: str
     lines = ["| Method | " + " | ".join(HEADS[c] for c in cols) + " |", "|---|" + "---:|" * len(cols)]
     lines += [f"| {s['method']} | " + " | ".join(f"{s[c]:.4f}" for c in cols) + " |" for s in summary]
     note = f"\n\n{lp_note}." if lp_note else ""
-    (out / "summary.md").write_text(_caption(summary) + "\n\n" + "\n".join(lines) + note + "\n")
+    (out / "summary.md").write_text(_caption(summary, flat_normal) + "\n\n" + "\n".join(lines) + note + "\n")
 
 
 def _file_stem(name: str) -> str:

@@ -1,7 +1,8 @@
 """Evaluation metrics of reconstructed SVBRDFs (the paper's Tables 1 and 3).
 
 * Map RMSE on the encoded maps (docs/conventions.md: normal as (n + 1) / 2, albedos and roughness as
-  stored, all in [0, 1]) per map and their average.
+  stored, all in [0, 1]) per map and their average; the flat-normal RMSE of a set of materials is
+  the level a method reaches by predicting no normal detail at all.
 * Re-rendering RMSE and SSIM: both materials rendered under the same novel lighting
   (:mod:`mitsvbrdf.relight`), tone-mapped with the ground truth's exposure, compared per image.
 * LPIPS only when the ``lpips`` package and its weights are present locally (no downloads).
@@ -33,6 +34,14 @@ def map_rmse(pred: SVBRDF, gt: SVBRDF) -> dict[str, Tensor]:
     out = {k: (a[:, s] - b[:, s]).square().mean((1, 2, 3)).sqrt() for k, s in MAP_CHANNELS.items()}
     out["average"] = torch.stack([out[k] for k in MAP_CHANNELS]).mean(0)
     return out
+
+
+def flat_normal_rmse(gt: SVBRDF) -> Tensor:
+    """Normal RMSE (encoded) of predicting n = (0, 0, 1) everywhere, per material: (B,). A method
+    whose normal RMSE sits at this level has not recovered the normals."""
+    flat = torch.zeros_like(gt.normal)
+    flat[:, 2] = 1.0
+    return ((flat - gt.normal) / 2).square().mean((1, 2, 3)).sqrt()
 
 
 def image_rmse(pred: Tensor, gt: Tensor) -> Tensor:

@@ -8,6 +8,7 @@ import torch
 import mitsvbrdf as ms
 from mitsvbrdf.acquisition import Acquisition, FixedAcquisition
 from mitsvbrdf.evaluation import Relighting, evaluate, simulated, summarize
+from mitsvbrdf.metrics import flat_normal_rmse
 
 from conftest import textured_material
 
@@ -53,6 +54,8 @@ def test_outputs_tables_figures_and_index(rig, tmp_path, relight):
         assert len(list(csv.DictReader(f))) == 4
     md = (tmp_path / "summary.md").read_text()
     assert "| oracle |" in md and "Normal" in md and "LPIPS skipped" in md
+    flat = sum(float(flat_normal_rmse(m)[0]) for m in mats) / 2
+    assert f"A flat normal map scores normal RMSE {flat:.4f}" in md
     assert len(list((tmp_path / "figures").glob("*.png"))) == 2
     assert "figures/material_001.png" in (tmp_path / "index.html").read_text()
 

@@ -6,7 +6,7 @@ import pytest
 import torch
 
 import mitsvbrdf as ms
-from mitsvbrdf.metrics import image_rmse, image_ssim, lpips_model, map_rmse
+from mitsvbrdf.metrics import flat_normal_rmse, image_rmse, image_ssim, lpips_model, map_rmse
 from mitsvbrdf.relight import point_light_images, random_point_lights
 from mitsvbrdf.viewing import tonemap
 
@@ -51,6 +51,13 @@ def test_map_rmse_is_zero_for_identical_maps_and_counts_each_map():
     e = map_rmse(other, m)
     assert float(e["diffuse"]) > 0 and float(e["normal"]) == 0
     assert float(e["average"]) == pytest.approx(float(e["diffuse"]) / 4)
+
+
+def test_flat_normal_rmse_is_the_normal_rmse_of_a_flat_prediction():
+    m = textured_material(8)
+    flat = ms.SVBRDF(normal=flat_material(8).normal, diffuse=m.diffuse, roughness=m.roughness, specular=m.specular)
+    assert torch.allclose(flat_normal_rmse(m), map_rmse(flat, m)["normal"], rtol=1e-6)
+    assert float(flat_normal_rmse(flat)[0]) == 0.0
 
 
 def test_metrics_refuse_materials_of_a_different_resolution():

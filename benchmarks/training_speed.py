@@ -18,8 +18,9 @@ split into:
 The parts are timed by wrapping the stage's ``capture`` and the L_pdf function the acquisition
 layer's ``predict`` calls (``mitsvbrdf.acquisition.importance``) for the duration of
 the measurement, so they are what training runs. Each stage starts from the previous stage's
-networks after these few steps (the speed does not depend on the weights). Writes docs/benchmarks/training_speed_<device>.md
-(+ CSV).
+networks after these few steps (the speed does not depend on the weights). Writes
+docs/benchmarks/training_speed_<device>.md (+ CSV), or training_speed_<device>_<chain>.md for a
+``--chain`` other than small.toml.
 """
 
 from __future__ import annotations
@@ -153,7 +154,9 @@ def main() -> None:
             f"mean of {args.steps} steps after {args.warmup} warm-up step(s). Share of a step in % per part "
             "(benchmarks/training_speed.py's docstring defines them).\n\n" + head + body + "\n")
     print(text)
-    write_report(args.out, f"training_speed_{args.device}", "Training throughput", "training_speed.py", text, rows)
+    # the shipped chain's table keeps its name; another chain's gets the chain's name appended
+    stem = f"training_speed_{args.device}" + ("" if args.chain.name == "small.toml" else f"_{args.chain.stem}")
+    write_report(args.out, stem, "Training throughput", "training_speed.py", text, rows)
 
 
 if __name__ == "__main__":

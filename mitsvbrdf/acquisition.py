@@ -21,7 +21,8 @@ The learned parts are injected as modules, so the same code serves trained weigh
 * ``initializer(i0 (B, 3, H, W)) -> (B, 10, H, W)`` encoded maps (normal and roughness are used);
 * ``lighting(i0, lpdf (B, 1, h, w))`` -> an object with ``patterns`` (B, 4, 3, h, w) in [0, 1];
 * ``reconstructor(images (B, P, 3, H, W), spec (B, P(P-1)/2, 3, H, W) | None) -> (B, 10, H, W)``
-  encoded maps (``spec`` is None when the settings' ``use_spec`` is False).
+  encoded maps (``spec`` is None when the settings' ``use_spec`` is False); a reconstructor whose
+  ``diffuse_ratio`` attribute is true is also given ``irradiance=`` the patterns' L^d (B, P, 3, H, W).
 
 Images are linear radiance on the sample's texel grid. Single-material calls take and return
 tensors without the batch dimension.

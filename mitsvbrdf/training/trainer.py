@@ -339,8 +339,8 @@ class Trainer:
         old = {s: signal.signal(s, self._handle) for s in (signal.SIGINT, signal.SIGTERM)}
         # a budgeted run's bar counts seconds of its budget (its steps are only an upper bound)
         budgeted = cfg.time_budget > 0
-        bar = tqdm(total=round(cfg.time_budget, 1) if budgeted else cfg.steps,
-                   initial=round(min(self.elapsed, cfg.time_budget), 1) if budgeted else self.step,
+        bar = tqdm(total=math.ceil(cfg.time_budget) if budgeted else cfg.steps,
+                   initial=int(min(self.elapsed, cfg.time_budget)) if budgeted else self.step,
                    unit="s" if budgeted else "it", desc=self.cfg.stage, disable=not self.progress)
         t0, last = time.perf_counter(), {}
         t_log, step_log = t0, self.step
@@ -361,7 +361,7 @@ class Trainer:
                 self.step += 1
                 now = time.perf_counter()
                 self.elapsed = elapsed0 + (now - t0)
-                bar.update(round(min(self.elapsed, cfg.time_budget) - bar.n, 3) if budgeted else 1)
+                bar.update(int(min(self.elapsed, cfg.time_budget)) - bar.n if budgeted else 1)  # whole seconds
                 if self.step % cfg.log_every == 0 or self.step == cfg.steps or self.budget_spent():
                     rate = (self.step - step_log) / max(now - t_log, 1e-9)
                     t_log, step_log = now, self.step

@@ -21,7 +21,6 @@ normal RMSE sits there has not learned normals), and paired differences against 
 
 from __future__ import annotations
 
-import argparse
 import os
 import sys
 from pathlib import Path
@@ -29,8 +28,8 @@ from pathlib import Path
 import torch
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
-from training_renderer import (MAPS, ROOT, paired_lines, probe_seconds_per_step, score, score_rows,  # noqa: E402
-                                table_lines, train)
+from training_renderer import (MAPS, paired_lines, probe_seconds_per_step, score, score_rows,  # noqa: E402
+                                study_parser, study_runs, table_lines, train)
 
 WEIGHTS = "loss.map_weights=[5.0, 1.0, 1.0, 1.0]"
 RUNS = {
@@ -42,25 +41,9 @@ BASE = "images-4spp"
 
 
 def main() -> None:
-    ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
-    ap.add_argument("--steps", type=int, default=1000)
-    ap.add_argument("--size", type=int, default=64)
-    ap.add_argument("--width", type=int, default=16)
-    ap.add_argument("--eval-n", type=int, default=16)
-    ap.add_argument("--runs", default=",".join(RUNS), help="comma-separated subset of " + ", ".join(RUNS))
-    ap.add_argument("--no-probe", action="store_true", help="leave out the seconds-per-step probes")
-    ap.add_argument("--eval-only", action="store_true")
-    ap.add_argument("--quick", action="store_true", help="3 steps at 16 px, 2 materials; nothing written")
-    ap.add_argument("--work", type=Path, default=ROOT / "runs" / "svbrdf_inputs")
-    ap.add_argument("--out", type=Path, default=ROOT / "docs" / "benchmarks")
+    ap = study_parser(__doc__, RUNS, 1000, "svbrdf_inputs")
     args = ap.parse_args()
-    names = [n for n in args.runs.split(",") if n]
-    unknown = [n for n in names if n not in RUNS]
-    if unknown:
-        ap.error(f"unknown runs {unknown}; available: {', '.join(RUNS)}")
-    if args.quick:
-        args.steps, args.size, args.width, args.eval_n = 3, 16, 4, 2
-        args.work = args.work.parent / (args.work.name + "-quick")
+    names = study_runs(ap, args, RUNS)
     args.seed = 4
     for name in names:
         if not (args.eval_only or (args.work / name / "networks.pt").exists()):

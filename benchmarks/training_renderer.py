@@ -143,32 +143,44 @@ def paired_lines(scores: dict[str, dict[str, list[float]]], base: str, keys: lis
     return lines
 
 
-def main() -> None:
-    ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
-    ap.add_argument("--steps", type=int, default=900)
+def study_parser(doc: str, runs: dict, steps: int, work: str) -> argparse.ArgumentParser:
+    """The options every G_sc training study shares (this one and benchmarks/svbrdf_inputs.py)."""
+    ap = argparse.ArgumentParser(description=doc.split("\n")[0])
+    ap.add_argument("--steps", type=int, default=steps)
     ap.add_argument("--size", type=int, default=64)
     ap.add_argument("--width", type=int, default=16)
     ap.add_argument("--eval-n", type=int, default=16)
-    ap.add_argument("--runs", default=",".join(RUNS), help="comma-separated subset of " + ", ".join(RUNS))
-    ap.add_argument("--seeds", default="4,5", help="comma-separated training seeds (4: the config's)")
-    ap.add_argument("--skip-reference", action="store_true")
+    ap.add_argument("--runs", default=",".join(runs), help="comma-separated subset of " + ", ".join(runs))
     ap.add_argument("--no-probe", action="store_true", help="leave out the seconds-per-step probes")
     ap.add_argument("--eval-only", action="store_true")
     ap.add_argument("--quick", action="store_true", help="3 steps at 16 px, 2 materials; nothing written")
-    ap.add_argument("--work", type=Path, default=ROOT / "runs" / "training_renderer")
+    ap.add_argument("--work", type=Path, default=ROOT / "runs" / work)
     ap.add_argument("--out", type=Path, default=ROOT / "docs" / "benchmarks")
-    args = ap.parse_args()
+    return ap
+
+
+def study_runs(ap: argparse.ArgumentParser, args, runs: dict) -> list[str]:
+    """The runs ``--runs`` names (an error for unknown ones); ``--quick`` shrinks everything."""
     names = [n for n in args.runs.split(",") if n]
-    unknown = [n for n in names if n not in RUNS]
+    unknown = [n for n in names if n not in runs]
     if unknown:
-        ap.error(f"unknown runs {unknown}; available: {', '.join(RUNS)}")
+        ap.error(f"unknown runs {unknown}; available: {', '.join(runs)}")
+    if args.quick:
+        args.steps, args.size, args.width, args.eval_n = 3, 16, 4, 2
+        args.work = args.work.parent / (args.work.name + "-quick")
+    return names
+
+
+def main() -> None:
+    ap = study_parser(__doc__, RUNS, 900, "training_renderer")
+    ap.add_argument("--seeds", default="4,5", help="comma-separated training seeds (4: the config's)")
+    ap.add_argument("--skip-reference", action="store_true")
+    args = ap.parse_args()
+    names = study_runs(ap, args, RUNS)
     untrained = []
     if args.skip_reference:
         untrained = [n for n in names if n == "reference"]
         names = [n for n in names if n != "reference"]
-    if args.quick:
-        args.steps, args.size, args.width, args.eval_n = 3, 16, 4, 2
-        args.work = args.work.parent / (args.work.name + "-quick")
     seeds = [int(x) for x in args.seeds.split(",")]
 
     def folder(name: str, seed: int) -> Path:

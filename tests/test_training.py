@@ -47,6 +47,22 @@ def test_every_shipped_chain_validates_with_its_stage_configs():
             load_config(st.config, [*chain.overrides, *st.overrides])
 
 
+def test_every_warm_start_of_a_shipped_chain_finds_its_networks_in_the_file(rig):
+    from mitsvbrdf.nets.io import read_network_file
+    from mitsvbrdf.training.chain import load_chain
+
+    started = 0
+    for path in sorted((ROOT / "train" / "chains").glob("*.toml")):
+        chain = load_chain(path)
+        for st in chain.stages:
+            cfg = load_config(st.config, [*chain.overrides, *st.overrides])
+            if cfg.pretrained.warm_start:
+                stage = STAGES[cfg.stage](cfg.model, cfg.loss, RenderSettings(), rig)
+                stage.warm_start(read_network_file(ROOT / cfg.pretrained.warm_start, "networks"))
+                started += 1
+    assert started >= 2  # continue-small.toml: G_l in stage 1, G_sc in stage 2
+
+
 @pytest.mark.parametrize("suffix", ["-small", ""])
 def test_every_baseline_and_adaptive_variant_gets_the_same_g_sc_budget(suffix):
     cfg = lambda name: load_config(ROOT / "train" / f"{name}{suffix}.toml")  # noqa: E731

@@ -196,6 +196,13 @@ def test_resume_with_other_settings_is_refused(rig, pipeline, tmp_path):
         CaptureSession(tmp_path, pipeline, bracket(camera(rig), (1.0,))).run(resume=True, progress=False)
 
 
+def test_resume_with_other_acquisition_settings_is_refused(rig, pipeline, tmp_path):
+    CaptureSession(tmp_path, pipeline, bracket(camera(rig))).run(progress=False)
+    uniform = load_adaptive(DEFAULT_NETWORKS, rig, lpdf_from="uniform")  # the same weights, other patterns
+    with pytest.raises(SessionError, match="acquisition"):
+        CaptureSession(tmp_path, uniform, bracket(camera(rig))).run(resume=True, progress=False)
+
+
 def test_resume_with_another_gain_is_refused(rig, pipeline, tmp_path):
     # The gain was not recorded: L0 stayed, L1-L4 came out brighter.
     CaptureSession(tmp_path, pipeline, bracket(camera(rig))).run(progress=False)

@@ -19,7 +19,8 @@ pulled cable loses at most the frame in flight):
 from the first missing frame; the reconstruction is then the same as an uninterrupted session's.
 
 The manifest's settings hold everything that decides the frames besides the patterns: the
-exposures, the camera's response and colour matrix, a digest of the rig and of the networks,
+exposures, the camera's response and colour matrix, a digest of the rig and of the networks and
+their acquisition settings (:class:`~mitsvbrdf.acquisition.AcquisitionSettings`),
 whatever the caller adds (the scene and networks files, the resolution) and, for cameras that
 report them (``frame_settings()``, e.g. the simulated rig's gain, noise, seed and material), the
 camera's own settings. Its ``files`` table holds the size and sha256 of every file the session
@@ -189,6 +190,8 @@ class CaptureSession:
                     "response_sha256": response,
                     "color_matrix": None if capture.color_matrix is None else np.asarray(capture.color_matrix).tolist(),
                     "rig_sha256": rig_digest(acquisition.rig), "networks_sha256": _state_digest(acquisition),
+                    # how the networks acquire (L_pdf source and quadrature, I^spec): same weights, other patterns
+                    "acquisition": acquisition.settings.record(),
                     **{f"camera.{k}": v for k, v in (frame() if frame is not None else {}).items()},
                     **(settings or {})}
         # as the manifest will read it back (tuples become lists), so that a comparison is exact

@@ -45,7 +45,9 @@ def main() -> None:
         for name in ("metrics.csv", "loss.png", "config.json"):
             if (run / name).exists():
                 shutil.copy(run / name, dest / name)
-    text = ("Mean of each logged loss term over the first and the last 10% of the logged steps "
+    # run folders by name only: where they lay on the machine that trained them is not the point
+    text = ("Command: `python benchmarks/training_log.py " + " ".join(f".../{r.name}" for r in runs) + "`\n\n"
+            "Mean of each logged loss term over the first and the last 10% of the logged steps "
             "(each run's metrics.csv and loss.png are copied to training_runs/).\n\n"
             "| run | term | steps | first 10% | last 10% | last / first |\n|---|---|---:|---:|---:|---:|\n" +
             "\n".join(f"| {r['run']} | {r['term']} | {r['steps']} | {r['first_10pct']} | {r['last_10pct']} | "

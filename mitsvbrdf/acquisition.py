@@ -80,7 +80,7 @@ class AcquisitionSettings:
         lpdf_cell_order, lpdf_lobe_grid: the L_pdf quadrature's orders
             (:class:`~mitsvbrdf.render.quadrature.QuadratureSettings`); the defaults are the
             renderer's. L_pdf's error is dominated by the texel stride, not by these: at 64 px,
-            stride 4, orders (1, 16) cost a third of (2, 32) for the same error
+            stride 4, orders (1, 16) cost a fifth of (2, 32) for the same error
             (``benchmarks/lpdf_cost.py``, docs/benchmarks/lpdf_cost.md).
     """
 

@@ -200,6 +200,8 @@ def test_flash_baseline_refuses_lcd_options(rig):
     S = STAGES["fixed"]
     with pytest.raises(ms.MitsvbrdfError, match="flash"):
         S(S.Model(light="flash", learn_patterns=True), S.Loss(), RenderSettings(), rig)
+    with pytest.raises(ms.MitsvbrdfError, match="diffuse_ratio must be false"):
+        S(S.Model(light="flash", diffuse_ratio=True), S.Loss(), RenderSettings(), rig)
     with pytest.raises(ms.MitsvbrdfError, match="model.light"):
         S(S.Model(light="laser"), S.Loss(), RenderSettings(), rig)
 

@@ -317,9 +317,9 @@ class FixedStage(TrainingStage):
         if model.light not in ("lcd", "flash"):
             raise MitsvbrdfError(f"model.light must be 'lcd' or 'flash', got {model.light!r}")
         if model.light == "flash":
-            if model.learn_patterns or model.use_spec:
-                raise MitsvbrdfError("model.light = 'flash' has no LCD patterns: learn_patterns and use_spec "
-                                     "must be false")
+            if model.learn_patterns or model.use_spec or model.diffuse_ratio:
+                raise MitsvbrdfError("model.light = 'flash' has no LCD patterns: learn_patterns, use_spec and "
+                                     "diffuse_ratio must be false")
             self.nets["flash"] = FlashLight(model.flash_intensity)
             count = 1
         else:
@@ -328,8 +328,6 @@ class FixedStage(TrainingStage):
             count = pats.shape[0]
             self.nets["patterns"] = PatternSet(count, rig.lcd_cells, learnable=model.learn_patterns)
             self.nets["patterns"].set(pats)
-        if model.light == "flash" and model.diffuse_ratio:
-            raise MitsvbrdfError("model.light = 'flash' has no LCD patterns: diffuse_ratio must be false")
         self.nets["svbrdf"] = SVBRDFPredictor(count, model.svbrdf_width, tuple(model.svbrdf_blocks),
                                               use_spec=model.use_spec, diffuse_ratio=model.diffuse_ratio)
 

@@ -14,7 +14,9 @@ Layout (every key optional except ``stage``; defaults below)::
     [train]    steps, batch, lr, lr_min, weight_decay, grad_clip, checkpoint_every, log_every, device,
                time_budget (seconds of training; 0: none. With a budget the cosine schedule runs on
                the elapsed fraction of it, and steps is only an upper bound)
-    [pretrained]  networks = "runs/init/networks.pt"  (an earlier stage's export)
+    [pretrained]  networks = "runs/init/networks.pt"  (an earlier stage's export);
+                  warm_start = "mitsvbrdf/weights/networks.pt"  (an export the networks this stage
+                  builds from scratch start from, where it has them)
 
 Shared bases: ``extends = "base/small.toml"`` (or a list of files, applied in order) at the top
 level reads those configs first, relative to the including file; a base may extend others in turn.

@@ -39,7 +39,7 @@ from torch.utils.data import Dataset
 from ..errors import ImageFileError, MaterialError, MitsvbrdfError
 from ..svbrdf import SVBRDF
 from .augment import MAP_KEYS, Augment, crop_maps
-from .procedural import generate_indices, material_seed
+from .procedural import check_bump, generate_indices, material_seed
 
 STRIP_SUFFIXES = (".png", ".jpg", ".jpeg")
 
@@ -109,11 +109,12 @@ class ProceduralDataset(Dataset, _Epoch):
     """
 
     def __init__(self, length: int, size: int = 256, seed: int = 0, families: Sequence[str] | None = None, *,
-                 augment: Augment | None = None, bump: float = 1.0, start: int = 0, device: str | None = None):
+                 augment: Augment | None = None, bump: float | tuple[float, float] = 1.0, start: int = 0,
+                 device: str | None = None):
         if length < 1:
             raise MaterialError(f"length must be >= 1, got {length}")
         self.length, self.size, self.seed, self.families = int(length), int(size), int(seed), families
-        self.augment, self.bump, self.start, self.device = augment, float(bump), int(start), device
+        self.augment, self.bump, self.start, self.device = augment, check_bump(bump), int(start), device
 
     def __len__(self) -> int:
         return self.length

@@ -842,6 +842,38 @@ def sample_parameters(index: int, seed: int = 0, families: Sequence[str] | None 
     return fam, variant, params
 
 
+Bump = float | tuple[float, float]
+
+
+def bump_factor(index: int, seed: int, bump: Bump) -> float:
+    """Relief multiplier of material ``index`` of stream ``seed``: ``bump`` itself when it is a
+    number, else log-uniform in the range ``(lo, hi)``, drawn from the material's own generator
+    (salt ``"bump"``, so the material's other draws are the same for every ``bump``)."""
+    if isinstance(bump, (int, float)):
+        return float(bump)
+    lo, hi = bump
+    if lo == hi:
+        return float(lo)
+    return Draw(material_seed(seed, index, "bump")).logu(lo, hi)
+
+
+def check_bump(bump: Bump) -> Bump:
+    """``bump`` validated: a finite number >= 0, or a range (lo, hi) with 0 < lo <= hi finite."""
+    if isinstance(bump, bool):
+        raise MaterialError(f"bump must be a number or a (lo, hi) range, got {bump!r}")
+    if isinstance(bump, (int, float)):
+        if not math.isfinite(bump) or bump < 0:
+            raise MaterialError(f"bump must be a finite number >= 0, got {bump}")
+        return float(bump)
+    try:
+        lo, hi = (float(v) for v in bump)
+    except (TypeError, ValueError):
+        raise MaterialError(f"bump must be a number or a (lo, hi) range, got {bump!r}") from None
+    if not (math.isfinite(lo) and math.isfinite(hi) and 0 < lo <= hi):
+        raise MaterialError(f"a bump range (lo, hi) needs finite 0 < lo <= hi, got ({lo}, {hi})")
+    return (lo, hi)
+
+
 def _collate_params(items: list[dict], device) -> dict[str, Tensor]:
     out = {}
     for k in items[0]:
@@ -857,7 +889,7 @@ def _default_chunk(size: int, device: torch.device) -> int:
 
 
 def generate(n: int, size: int = 256, seed: int = 0, families: Sequence[str] | None = None,
-             device: str | torch.device | None = None, *, start: int = 0, bump: float = 1.0,
+             device: str | torch.device | None = None, *, start: int = 0, bump: Bump = 1.0,
              chunk: int | None = None, threads: int | None = 1) -> SVBRDF:
     """Materials ``start .. start + n - 1`` of stream ``seed`` as one SVBRDF (B = n).
 
@@ -869,7 +901,11 @@ def generate(n: int, size: int = 256, seed: int = 0, families: Sequence[str] | N
             which family each index gets, so it is part of the stream's identity.
         device: where the maps are built and returned (CPU default); random draws stay on the CPU.
         start: index of the first material.
-        bump: global multiplier of every height field (1 = the generator's own relief; 0 = flat).
+        bump: multiplier of every height field (1 = the generator's own relief; 0 = flat), or a
+            range ``(lo, hi)``: each material's own multiplier, log-uniform in it
+            (:func:`bump_factor`). Training at 64 px uses (1, 4): a 64 px material lacks the
+            finest, steepest detail of the same material at 256 px, and a multiplier of 2 restores
+            the 256 px slope statistics (docs/benchmarks/data_statistics.md).
         chunk: materials built per vectorised call (default: a cache-friendly size on CPU).
         threads: torch intra-op threads on the CPU while generating (restored afterwards); None
             keeps torch's setting. The build is many small tensor ops, so the default is one
@@ -882,15 +918,13 @@ def generate(n: int, size: int = 256, seed: int = 0, families: Sequence[str] | N
         raise MaterialError(f"generate needs n >= 1, got {n}")
     if size < 4:
         raise MaterialError(f"generate needs size >= 4, got {size}")
-    if not math.isfinite(bump) or bump < 0:
-        raise MaterialError(f"bump must be a finite number >= 0, got {bump}")
     return generate_indices(range(start, start + n), size, seed, families, device, bump=bump, chunk=chunk,
                             threads=threads, name=f"procedural:{seed}:{start}")
 
 
 def generate_indices(indices: Sequence[int], size: int = 256, seed: int = 0,
                      families: Sequence[str] | None = None, device: str | torch.device | None = None, *,
-                     bump: float = 1.0, chunk: int | None = None, threads: int | None = 1,
+                     bump: Bump = 1.0, chunk: int | None = None, threads: int | None = 1,
                      name: str | None = None) -> SVBRDF:
     """Materials at arbitrary ``indices`` of stream ``seed`` (in that order), built in vectorised
     groups; arguments as for :func:`generate`."""
@@ -901,6 +935,7 @@ def generate_indices(indices: Sequence[int], size: int = 256, seed: int = 0,
     if any(i < 0 for i in indices):
         raise MaterialError(f"material indices must be >= 0, got {min(indices)}")
     _check_families(families)
+    bump = check_bump(bump)
     if size < 4:
         raise MaterialError(f"size must be >= 4, got {size}")
     chunk = chunk or _default_chunk(size, dev)
@@ -913,12 +948,12 @@ def generate_indices(indices: Sequence[int], size: int = 256, seed: int = 0,
         torch.set_num_threads(previous)
 
 
-def _build_all(indices: list[int], size: int, seed: int, families, dev: torch.device, bump: float, chunk: int,
+def _build_all(indices: list[int], size: int, seed: int, families, dev: torch.device, bump: Bump, chunk: int,
                name: str | None) -> SVBRDF:
     groups: dict[tuple[str, str], list[tuple[int, dict]]] = {}
     for pos, i in enumerate(indices):
         fam, variant, params = sample_parameters(i, seed, families)
-        groups.setdefault((fam, variant), []).append((pos, params))
+        groups.setdefault((fam, variant), []).append((pos, dict(params, bump=bump_factor(i, seed, bump))))
     B = len(indices)
     out = {"normal": torch.empty(B, 3, size, size, device=dev), "diffuse": torch.empty(B, 3, size, size, device=dev),
            "roughness": torch.empty(B, 1, size, size, device=dev), "specular": torch.empty(B, 3, size, size, device=dev)}
@@ -929,7 +964,7 @@ def _build_all(indices: list[int], size: int, seed: int, families, dev: torch.de
                 pos = torch.tensor([m[0] for m in part], device=dev)
                 p = _collate_params([m[1] for m in part], dev)
                 lay = _REGISTRY[fam].build(p, variant, size)
-                maps = _finish(lay, p["relief"] * bump, size, p["saturation"])
+                maps = _finish(lay, p["relief"] * p["bump"], size, p["saturation"])
                 for k, v in maps.items():
                     out[k].index_copy_(0, pos, v)
     return SVBRDF(**out, name=name, check=False)
@@ -957,6 +992,6 @@ def _finish(lay: Layers, relief: Tensor, size: int, saturation: Tensor | None = 
 
 
 def material(index: int, size: int = 256, seed: int = 0, families: Sequence[str] | None = None,
-             device: str | torch.device | None = None, *, bump: float = 1.0) -> SVBRDF:
+             device: str | torch.device | None = None, *, bump: Bump = 1.0) -> SVBRDF:
     """Material ``index`` of stream ``seed`` alone (B = 1); equal to ``generate(..)[index - start]``."""
     return generate(1, size, seed, families, device, start=index, bump=bump)

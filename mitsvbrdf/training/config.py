@@ -7,7 +7,8 @@ Layout (every key optional except ``stage``; defaults below)::
     out = "runs/stage1"           # relative paths are relative to the current directory
     scene = ""                    # rig scene file; "": the package's default rig
 
-    [data]     source = "procedural" | "strips" | "folders"; root; size; length; families
+    [data]     source = "procedural" | "strips" | "folders"; root; size; length; families;
+               bump = [lo, hi] (procedural relief multiplier, log-uniform per material)
     [render]   method = "mitsuba" | "ltc" | "reference"; spp; [render.noise] shot, read, bits
     [model]    the stage's own options (see mitsvbrdf.training.stages: *Model dataclasses)
     [loss]     the stage's loss weights (*Loss dataclasses)
@@ -61,6 +62,9 @@ class DataConfig:
     size: int = 64
     length: int = 100_000
     families: list[str] = field(default_factory=list)
+    # procedural relief multiplier range [lo, hi], log-uniform per material ([1, 1]: the
+    # generator's own relief); see mitsvbrdf.data.procedural.generate
+    bump: list[float] = field(default_factory=lambda: [1.0, 1.0])
 
 
 @dataclass
@@ -271,6 +275,10 @@ def _check_values(cfg: Config) -> None:
               (cfg.train.log_every >= 1, "train.log_every", ">= 1"),
               (cfg.data.size >= 8 and cfg.data.size % 8 == 0, "data.size", "a positive multiple of 8"),
               (cfg.data.length >= 1, "data.length", ">= 1"),
+              (len(cfg.data.bump) == 2 and 0 < cfg.data.bump[0] <= cfg.data.bump[1], "data.bump",
+               "a range [lo, hi] with 0 < lo <= hi"),
+              (cfg.data.source == "procedural" or cfg.data.bump == [1.0, 1.0], "data.bump",
+               "[1, 1] unless data.source = 'procedural' (loaded maps keep their own relief)"),
               (cfg.train.lr_min >= 0, "train.lr_min", ">= 0"), (cfg.train.weight_decay >= 0, "train.weight_decay", ">= 0"),
               (cfg.train.grad_clip >= 0, "train.grad_clip", ">= 0 (0: no clipping)"),
               (cfg.render.noise.shot >= 0, "render.noise.shot", ">= 0"),

@@ -112,7 +112,7 @@ def _device(name: str) -> torch.device:
 def make_dataset(cfg: Config):
     d = cfg.data
     if d.source == "procedural":
-        return ProceduralDataset(d.length, d.size, seed=cfg.seed, families=d.families or None)
+        return ProceduralDataset(d.length, d.size, seed=cfg.seed, families=d.families or None, bump=tuple(d.bump))
     if d.source == "strips":
         return StripDataset(d.root, crop=d.size)
     return MapFolderDataset(d.root, crop=d.size)

@@ -102,7 +102,9 @@ def test_threads_argument_restores_torch_setting():
 
 
 @pytest.mark.parametrize("kwargs", [dict(n=0), dict(n=1, size=2), dict(n=1, families=["granite"]),
-                                    dict(n=1, families=[]), dict(n=1, bump=-1.0)])
+                                    dict(n=1, families=[]), dict(n=1, bump=-1.0), dict(n=1, bump=(0.0, 2.0)),
+                                    dict(n=1, bump=(2.0, 1.0)), dict(n=1, bump=(1.0, math.inf)),
+                                    dict(n=1, bump=(1.0, 2.0, 3.0)), dict(n=1, bump=True)])
 def test_bad_arguments_raise_material_error(kwargs):
     with pytest.raises(MaterialError):
         generate(**kwargs)
@@ -140,6 +142,28 @@ def test_bump_scales_the_relief_from_flat_to_steep():
     assert slopes[0] < slopes[1] < slopes[2]
     steep = stats.texel_values(generate(12, size=48, seed=2, bump=4.0))["slope_deg"]
     assert (steep > 60).float().mean() > 1e-3  # steep slopes are reachable
+
+
+def test_a_bump_range_multiplies_each_material_by_its_own_factor_in_the_range():
+    base = generate(8, size=32, seed=3)
+    ranged = generate(8, size=32, seed=3, bump=(1.0, 4.0))
+    factors = [procedural.bump_factor(i, 3, (1.0, 4.0)) for i in range(8)]
+    assert all(1.0 <= f <= 4.0 for f in factors) and len(set(factors)) == 8
+    for i, f in enumerate(factors):
+        torch.testing.assert_close(ranged.normal[i], generate(1, size=32, seed=3, start=i, bump=f).normal[0])
+    torch.testing.assert_close(ranged.diffuse, base.diffuse)  # only the relief changes
+    torch.testing.assert_close(ranged.roughness, base.roughness)
+
+
+def test_a_material_keeps_its_bump_factor_in_any_batch():
+    whole = generate(6, size=16, seed=4, bump=(0.5, 3.0))
+    part = generate(2, size=16, seed=4, bump=(0.5, 3.0), start=4)
+    torch.testing.assert_close(whole.normal[4:], part.normal)
+
+
+def test_a_degenerate_bump_range_is_its_one_value():
+    torch.testing.assert_close(generate(3, size=16, seed=5, bump=(2.0, 2.0)).normal,
+                               generate(3, size=16, seed=5, bump=2.0).normal)
 
 
 # ---- coverage ------------------------------------------------------------------------------------

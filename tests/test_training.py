@@ -90,6 +90,20 @@ def test_unknown_model_key_of_the_stage_is_named():
         load_config(table={"stage": "stage1", "model": {"lighting_widht": 4}})
 
 
+@pytest.mark.parametrize("bump, source", [("[4.0, 1.0]", "procedural"), ("[0.0, 1.0]", "procedural"),
+                                          ("[2.0]", "procedural"), ("[1.0, 2.0]", "strips")])
+def test_a_bump_range_that_is_not_a_relief_range_of_procedural_data_is_refused(bump, source):
+    with pytest.raises(ConfigError, match=r"data\.bump: must be"):
+        load_config(ROOT / "train" / "stage2-small.toml", [f"data.bump={bump}", f'data.source="{source}"'])
+
+
+def test_the_bump_range_reaches_the_procedural_dataset():
+    from mitsvbrdf.training.trainer import make_dataset
+
+    cfg = load_config(ROOT / "train" / "stage2-small.toml", ["data.bump=[1.0, 4.0]"])
+    assert make_dataset(cfg).bump == (1.0, 4.0)
+
+
 def test_missing_or_unknown_stage_is_refused():
     with pytest.raises(ConfigError, match="stage: must be one of"):
         load_config(table={"seed": 1})

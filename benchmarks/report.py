@@ -16,7 +16,12 @@ def write_report(out_dir: Path, stem: str, title: str, script: str, text: str, r
     """Write ``<stem>.md`` (title, provenance line, ``text``) and ``<stem>.csv`` (``rows``)."""
     out_dir.mkdir(parents=True, exist_ok=True)
     (out_dir / f"{stem}.md").write_text(f"# {title}\n\nWritten by `benchmarks/{script}`.\n\n{text}")
-    with open(out_dir / f"{stem}.csv", "w", newline="") as f:
+    write_csv(out_dir / f"{stem}.csv", rows)
+
+
+def write_csv(path: Path, rows: list[dict]) -> None:
+    """``rows`` (dicts with the same keys) as a CSV file with a header line."""
+    with open(path, "w", newline="") as f:
         w = csv.DictWriter(f, fieldnames=list(rows[0]))
         w.writeheader()
         w.writerows(rows)

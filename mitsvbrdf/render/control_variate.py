@@ -26,13 +26,33 @@ disagree. Two terms (either may be switched off by the scene file's integrator o
   spikier, not smoother) and where cos(theta_v) < ``ltc_min_cos_view`` (at grazing views the LTC
   overestimates the lobe's tail several-fold, and so large a g makes the residual larger than the
   integrand: the "tilt=70" column of docs/benchmarks/render_tradeoff.md).
+* specular under every cell ("ltc-cells": replaces the term above where roughness >=
+  ``ltc_cells_min_roughness``): one radiance per texel cannot follow a sparse pattern under a wide
+  lobe (a rough metal under adaptive patterns is the worst case of the procedural study), so this
+  term keeps each cell's own radiance and approximates only the lobe:
+  ``g_s = S q(y) R_c(y) / G(y)`` for a direction that meets the LCD at y in cell c(y), where
+  ``G = cos(theta_lcd) / r^2`` turns LCD area into solid angle, R_c is the cell's radiance with
+  the decay's position factor at the cell's centre, and q is the bilinear interpolant, over a
+  (k + 1) x (k + 1) grid of LCD points v (``ltc_grid`` = k), of
+  ``q_v = D_ltc(w_v) G_v d_v`` (w_v the direction to v, d_v the decay's cosine factor there).
+  A bilinear function's mean over a rectangle inside one grid quad is its value at the
+  rectangle's centre, so the integral is exact and cheap:
+  ``S sum_v q_v T_{p,v}``, ``T_{p,v} = sum_c t_v(c) R_{p,c} A_c`` with t_v(c) the bilinear
+  weight of vertex v at cell c's centre: a fixed linear map of the pattern. The residual is then
+  ``L e (f cos / L e - S q / G)``-like: the pattern factors out, and what is left is the LTC fit's
+  and the interpolation's error, whatever the pattern. Below ``ltc_cells_min_roughness`` the lobe
+  is too narrow for the grid and the one-radiance term stays. The diffuse lobe goes the same way
+  in this mode (``q^d_v = (n . w_v)^+ / pi G_v d_v``, weight kd (1 - ks)) in place of the block
+  term: block means miss a sparse pattern's detail under it as well, and any q keeps the
+  integral exact, also where the LCD crosses the horizon of n.
 
 Rejected alternatives (tried during development, not kept as options): the closed form inside
 the plugin, as one Dr.Jit kernel with the K x K block polygons unrolled, took the LLVM backend
 seconds per block to compile, and a per-block contraction there cost more in gathers than the
 whole render; torch does the contraction as one batched matrix product. A specular term resolved
 per block (K^2 clipped LTC polygons per texel) would follow sparse patterns under wide lobes, but
-costs K^2 times the one polygon per texel used here. Choosing c_p as the lobe-weighted mean of
+costs K^2 times the one polygon per texel used here; the per-cell term ("ltc-cells") gets the
+pattern's detail for the price of (k + 1)^2 lobe evaluations per texel instead. Choosing c_p as the lobe-weighted mean of
 the block radiances instead of the radiance at the peak left the procedural study's errors about
 where they were, so the simpler choice stays.
 
@@ -59,15 +79,19 @@ class ControlVariate:
 
     Attributes:
         block_radiance: (B, P, 3, K * K) Lbar_{p,b}, block b = row * K + column.
-        texel: (B, H * W, 4 + 3 + 3 P) per texel: the LTC's M^-1 entries (a, b, c, d), the diffuse
-            weight kd (1 - ks) (0 where the diffuse term is off), and c_p S for every pattern (0
-            where the specular term is off).
+        texel: (B, H * W, 4 + 3 + 3 P [+ 3]) per texel: the LTC's M^-1 entries (a, b, c, d), the
+            diffuse weight kd (1 - ks) (0 where the diffuse term is off), c_p S for every pattern
+            (0 where the one-radiance specular term is off) and, in mode "ltc-cells", S (0 where
+            the per-cell specular term is off) and kd (1 - ks) (the per-cell diffuse weight).
         known: (B, P, 3, H, W) K_p(x).
+        lobe_grid: mode "ltc-cells": (B, H * W, 2, (k + 1)^2) q_v and q^d_v, vertices row-major;
+            else None.
     """
 
     block_radiance: Tensor
     texel: Tensor
     known: Tensor
+    lobe_grid: Tensor | None = None
 
 
 def _block_average(rad: Tensor, k: int) -> Tensor:
@@ -107,6 +131,64 @@ def _block_form_factors(rig: Rig, height: int, width: int, k: int) -> Tensor:
     return torch.cat(out).permute(2, 0, 1).float().contiguous()
 
 
+@lru_cache(maxsize=8)
+def _grid_geometry(rig: Rig, height: int, width: int, k: int) -> tuple[Tensor, Tensor]:
+    """Per texel x and LCD grid vertex v (geometry only, float32): (N, 3, V) the unit world
+    direction to v (world axes on the middle axis, for batched products), and (N, V) G_v d_v = cos(theta_lcd) / r^2 times the decay's
+    cosine factor (0 where v does not face x); V = (k + 1)^2, vertices row-major."""
+    lcd = rig.lcd_geometry(dtype=torch.float64)
+    uv = _block_uv(k).reshape(-1, 2)
+    x = rig.surface_points((height, width)).double().reshape(-1, 3)
+    rel = lcd.point(uv)[None] - x[:, None]  # (N, V, 3)
+    dist2 = rel.square().sum(-1)
+    d = rel / dist2.sqrt()[..., None]
+    cos_emit = -(d @ lcd.normal)
+    g = cos_emit.clamp_min(0.0) / dist2
+    decay = rig.display.decay(torch.full_like(uv, 0.5), cos_emit)  # at the centre: the cosine factor alone
+    g = g if decay is None else g * decay
+    return d.transpose(1, 2).float().contiguous(), g.float()
+
+
+def _tent_weights(cells: int, k: int, dtype=torch.float64) -> Tensor:
+    """(k + 1, cells) t_v(c) along one axis: the linear-interpolation weight of grid vertex v at
+    the centre of cell c (k must divide cells, so every cell lies inside one grid interval)."""
+    if cells % k:
+        raise ValueError(f"ltc_grid = {k} does not divide the LCD's {cells} cells")
+    t = (torch.arange(cells, dtype=dtype) + 0.5) / cells * k
+    i = t.floor().clamp(0, k - 1)
+    f = t - i
+    w = torch.zeros(k + 1, cells, dtype=dtype)
+    w[i.long(), torch.arange(cells)] = 1 - f
+    w[i.long() + 1, torch.arange(cells)] += f
+    return w
+
+
+def _cells_term(rig: Rig, H: int, W: int, k: int, frame: Tensor, m_inv: Tensor, n: Tensor,
+                rad: Tensor) -> tuple[Tensor, Tensor, Tensor]:
+    """For B N texels (frame and M^-1 (B N, 3, 3), normals n (B, N, 3), materials outermost): the
+    specular and diffuse lobe values q_v and q^d_v (B, N, V) at the grid vertices, and T_{p,v}
+    (B, P, 3, V) of the cell radiance ``rad`` (B, P, 3, h, w) without decay."""
+    d, g = (t.to(frame.device, frame.dtype) for t in _grid_geometry(rig, H, W, k))
+    N = g.shape[0]
+    B = frame.shape[0] // N
+    # One batched product gives M^-1 w (rows 0-2: M^-1 times the view frame) and n . w (row 3).
+    rows = torch.cat([m_inv @ frame, n.reshape(-1, 1, 3)], 1).reshape(B, N, 4, 3)
+    wl = rows @ d  # (B, N, 4, V)
+    len2 = wl[:, :, :3].square().sum(2).clamp_min(1e-24)
+    det = torch.linalg.det(m_inv).abs().reshape(B, N, 1)
+    q = wl[:, :, 2].clamp_min(0.0) * (det / torch.pi) * g / len2.square()
+    q_d = wl[:, :, 3].clamp_min(0.0) * (g / torch.pi)
+    h, w = rad.shape[-2:]
+    lcd = rig.lcd_geometry(rad.device, torch.float64)
+    cell_uv = torch.stack(torch.meshgrid((torch.arange(w, dtype=torch.float64) + 0.5) / w,
+                                         (torch.arange(h, dtype=torch.float64) + 0.5) / h, indexing="xy"), -1)
+    position = rig.display.decay(cell_uv, torch.ones(h, w, dtype=torch.float64))  # the decay's position factor
+    scale = lcd.area / (h * w) * (1.0 if position is None else position)
+    tv, tu = (_tent_weights(m, k).to(rad.device, rad.dtype) for m in (h, w))
+    t = tv @ (rad * scale.to(rad.dtype)) @ tu.T  # (B, P, 3, k + 1, k + 1)
+    return q, q_d, t.flatten(-2)
+
+
 def _peak_block(rig: Rig, x: Tensor, d: Tensor, k: int) -> tuple[Tensor, Tensor]:
     """Block index (N,) where rays x + t d (world, N x 3) meet the LCD (its centre when they point
     away from it), and the decay factor of that block's centre towards x (N,)."""
@@ -121,14 +203,20 @@ def _peak_block(rig: Rig, x: Tensor, d: Tensor, k: int) -> tuple[Tensor, Tensor]
     return block, (torch.ones_like(front, dtype=x.dtype) if decay is None else decay)
 
 
+MODES = ("diffuse", "ltc", "ltc-cells")
+
+
 def control_variate(svbrdf, patterns: Tensor, rig: Rig, *, mode: str = "ltc", blocks: int = 8,
-                    ltc_min_roughness: float = 0.1, ltc_min_cos_view: float = 0.1) -> ControlVariate:
+                    ltc_min_roughness: float = 0.1, ltc_min_cos_view: float = 0.1, ltc_grid: int = 8,
+                    ltc_cells_min_roughness: float = 0.3) -> ControlVariate:
     """The control variate of B materials under P patterns ((P, 3, h, w) or (B, P, 3, h, w)).
 
-    ``mode``: "diffuse" or "ltc" (diffuse + specular); ``blocks``: K; see the module docstring.
+    ``mode``: "diffuse", "ltc" (diffuse + specular under one radiance per texel) or "ltc-cells"
+    (that, with the specular lobe under every cell's radiance where roughness >=
+    ``ltc_cells_min_roughness``, on a ``ltc_grid`` grid); ``blocks``: K; see the module docstring.
     """
-    if mode not in ("diffuse", "ltc"):
-        raise ValueError(f"control variate mode must be 'diffuse' or 'ltc', got {mode!r}")
+    if mode not in MODES:
+        raise ValueError(f"control variate mode must be one of {', '.join(MODES)}, got {mode!r}")
     B = svbrdf.batch_size
     H, W = svbrdf.resolution
     dev, dt = svbrdf.normal.device, svbrdf.normal.dtype
@@ -147,18 +235,22 @@ def control_variate(svbrdf, patterns: Tensor, rig: Rig, *, mode: str = "ltc", bl
     cos_v = (n * wo).sum(-1)  # (B, N)
     ok = (cos_v > 0) & (wo[:, 2] > 0)
     # (Broadcast products below, not einsum: einsum lowers these to bmm over 10^4 tiny matrices.)
-    above = ((n[:, None] * (corners[:, None] - x[None])[None]).sum(-1) > 0).all(1)
-    kdd = torch.where((ok & above)[..., None], kd * (1 - ks), torch.zeros_like(kd))  # (B, N, 3)
-
-    phi = _block_form_factors(rig, H, W, blocks).to(dev, dt)  # (3, N, K^2)
-    ff = n[:, :, 0:1] * phi[0]  # n . Phi_b: (B, N, K^2), one temporary
-    ff.addcmul_(n[:, :, 1:2], phi[1]).addcmul_(n[:, :, 2:3], phi[2])
-    known = torch.bmm(ff, lbar.reshape(B, P * 3, -1).transpose(1, 2)).reshape(B, -1, P, 3)
-    known = kdd[:, None] * known.permute(0, 2, 1, 3)  # (B, P, N, 3)
+    if mode == "ltc-cells":  # the diffuse lobe goes per cell too (below)
+        kdd = torch.zeros_like(kd)
+        known = torch.zeros(B, P, H * W, 3, dtype=dt, device=dev)
+    else:
+        above = ((n[:, None] * (corners[:, None] - x[None])[None]).sum(-1) > 0).all(1)
+        kdd = torch.where((ok & above)[..., None], kd * (1 - ks), torch.zeros_like(kd))  # (B, N, 3)
+        phi = _block_form_factors(rig, H, W, blocks).to(dev, dt)  # (3, N, K^2)
+        ff = n[:, :, 0:1] * phi[0]  # n . Phi_b: (B, N, K^2), one temporary
+        ff.addcmul_(n[:, :, 1:2], phi[1]).addcmul_(n[:, :, 2:3], phi[2])
+        known = torch.bmm(ff, lbar.reshape(B, P * 3, -1).transpose(1, 2)).reshape(B, -1, P, 3)
+        known = kdd[:, None] * known.permute(0, 2, 1, 3)  # (B, P, N, 3)
 
     m_entries = torch.zeros(B, H * W, 4, dtype=dt, device=dev)
     spec = torch.zeros(B, H * W, P, 3, dtype=dt, device=dev)
-    if mode == "ltc":
+    extra, lobe_grid = [], None
+    if mode != "diffuse":
         N = H * W
         nf, wf = n.reshape(-1, 3), wo.repeat(B, 1)  # (B N, 3), materials outermost
         frame, _ = view_frame(nf, wf)
@@ -176,11 +268,21 @@ def control_variate(svbrdf, patterns: Tensor, rig: Rig, *, mode: str = "ltc", bl
         use = ok.reshape(-1) & (r.reshape(-1) >= ltc_min_roughness) & (cos_v.reshape(-1) >= ltc_min_cos_view)
         ksf = ks.reshape(-1, 3)
         s = torch.where(use[:, None], ksf * (a_one - a_s)[:, None] + a_s[:, None], torch.zeros_like(ksf))
+        if mode == "ltc-cells":
+            cells = (use & (r.reshape(-1) >= ltc_cells_min_roughness))[:, None]
+            s_cells, s = torch.where(cells, s, 0.0).reshape(B, N, 3), torch.where(cells, 0.0, s)
+            kd_cells = torch.where(ok[..., None], kd * (1 - ks), torch.zeros_like(kd))
+            q, q_d, t = _cells_term(rig, H, W, ltc_grid, frame, m_inv, n, rad)
+            t = t.reshape(B, P * 3, -1).transpose(1, 2)  # (B, V, 3 P)
+            per_cell = (s_cells[:, :, None] * torch.bmm(q, t).reshape(B, N, P, 3)
+                        + kd_cells[:, :, None] * torch.bmm(q_d, t).reshape(B, N, P, 3))
+            known = known + per_cell.permute(0, 2, 1, 3)
+            extra, lobe_grid = [s_cells, kd_cells], torch.stack([q, q_d], 2)  # (B, N, 2, V)
         lb = lbar.permute(0, 3, 1, 2).reshape(B * blocks * blocks, P, 3)  # (B K^2, P, 3)
         mat = torch.arange(B, device=dev).repeat_interleave(N)
         cp = lb[mat * blocks * blocks + block]  # (B N, P, 3)
         spec = (cp * (s * decay[:, None])[:, None]).reshape(B, N, P, 3)
         known = known + (spec * e.reshape(B, N, 1, 1)).permute(0, 2, 1, 3)
-    texel = torch.cat([m_entries, kdd, spec.reshape(B, H * W, 3 * P)], -1)
+    texel = torch.cat([m_entries, kdd, spec.reshape(B, H * W, 3 * P), *extra], -1)
     return ControlVariate(block_radiance=lbar, texel=texel,
-                          known=known.permute(0, 1, 3, 2).reshape(B, P, 3, H, W))
+                          known=known.permute(0, 1, 3, 2).reshape(B, P, 3, H, W), lobe_grid=lobe_grid)

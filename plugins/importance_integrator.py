@@ -15,9 +15,11 @@ Parameters:
     control_variate  (string, default "ltc") what is known in closed form
                      (:mod:`mitsvbrdf.render.control_variate` computes it; the pointwise part is
                      :mod:`mitsvbrdf_plugins.lcd_integrals`): "none" (plain Monte Carlo),
-                     "diffuse" (the diffuse term under block-averaged patterns) or "ltc" (the
-                     diffuse term and the fitted LTC specular lobe); Monte Carlo estimates only
-                     the residual, so every choice is unbiased.
+                     "diffuse" (the diffuse term under block-averaged patterns), "ltc" (the
+                     diffuse term and the fitted LTC specular lobe under one radiance per texel)
+                     or "ltc-cells" (both lobes, the specular where it is wide, under every LCD
+                     cell's own radiance: for sparse patterns); Monte Carlo estimates only the
+                     residual, so every choice is unbiased.
     cv_blocks        (integer, default 8) the diffuse control variate sees the patterns averaged
                      over cv_blocks x cv_blocks blocks of cells (it must divide the LCD's cell
                      counts). More blocks: a closer control variate, more closed-form work per
@@ -33,6 +35,11 @@ Parameters:
     ltc_min_roughness (float, default 0.1) below this roughness the specular lobe is left to
                      Monte Carlo alone: a near-mirror LTC lobe that misses the true one by a
                      fraction of its width would make the residual spikier, not smoother.
+    ltc_grid         (integer, default 8) "ltc-cells": the lobe is interpolated bilinearly from
+                     its values at the (ltc_grid + 1)^2 vertices of a grid over the LCD (it must
+                     divide the LCD's cell counts); (ltc_grid + 1)^2 floats per texel.
+    ltc_cells_min_roughness (float, default 0.3) "ltc-cells": below this roughness the lobe is too
+                     narrow for the grid, and the one-radiance term of "ltc" stays.
 
 The emission decay, gamma and colour matrix of the scene's display model all apply: the control
 variate uses each block's mean radiance after the display model and the decay at the block's
@@ -66,7 +73,7 @@ from . import plugin_class
 from .lcd_integrals import ViewFrame, ltc_density
 
 SAMPLERS = ("independent", "stratified")
-CONTROL_VARIATES = ("none", "diffuse", "ltc")
+CONTROL_VARIATES = ("none", "diffuse", "ltc", "ltc-cells")
 LIGHT_SAMPLINGS = ("uniform", "patterns")
 
 
@@ -155,29 +162,66 @@ class _ControlVariate:
     coefficients that module computed (so the closed-form part and the residual cannot disagree).
 
     Args: the ``lcd`` emitter; ``block_rad`` the flat (B, P, 3, K^2) block radiance; ``coeffs`` the
-    flat (B, H W, 7 + 3 P) per-texel coefficients; K; the lanes' material ``b`` and ``texel``
-    index; the count P; the shading point's normal ``n`` and view direction (local)."""
+    flat (B, H W, 7 + 3 P [+ 6]) per-texel coefficients; K; the lanes' material ``b`` and ``texel``
+    index; the count P; the shading point's normal ``n`` and view direction (local); for
+    "ltc-cells", ``lobe_grid`` the flat (B, H W, 2, (k + 1)^2) lobe values q_v, q^d_v and ``grid`` k."""
 
-    def __init__(self, lcd, block_rad, coeffs, K: int, b, texel, hw: int, count: int, n, wi):
+    def __init__(self, lcd, block_rad, coeffs, K: int, b, texel, hw: int, count: int, n, wi,
+                 lobe_grid=None, grid: int = 0):
         self.lcd, self.K, self.count = lcd, K, count
         self.block_rad, self.b = block_rad, b
-        width = 7 + 3 * count
+        width = 7 + 3 * count + (0 if lobe_grid is None else 6)
         base = (b * hw + texel) * width
         c = [dr.gather(mi.Float, coeffs, base + j) for j in range(width)]
         self.m = tuple(c[:4])
         self.kdd = mi.Color3f(c[4], c[5], c[6])
         self.spec = [mi.Color3f(c[7 + 3 * p], c[8 + 3 * p], c[9 + 3 * p]) for p in range(count)]
+        self.lobe_grid, self.grid = lobe_grid, grid
+        self.lobe_base = (b * hw + texel) * (2 * (grid + 1) * (grid + 1))
+        if lobe_grid is not None:
+            self.s_cells = mi.Color3f(*c[7 + 3 * count:10 + 3 * count])
+            self.kd_cells = mi.Color3f(*c[10 + 3 * count:13 + 3 * count])
         self.frame = ViewFrame(n, wi)
         T = lcd.to_world()
         self.to_world = mi.Transform4f(T)
         self.lcd_n = lcd.normal()
 
+    def _point(self, u, v):
+        """The world position of LCD coordinates (u, v)."""
+        return self.to_world @ mi.Point3f(2.0 * u - 1.0, 2.0 * v - 1.0, 0.0)
+
     def _decay(self, p_world, u, v):
         """e_b(x): the emission decay of the LCD point (u, v) towards the shading point."""
         if not self.lcd.has_decay:
             return mi.Float(1.0)
-        y = self.to_world @ mi.Point3f(2.0 * u - 1.0, 2.0 * v - 1.0, 0.0)
+        y = self._point(u, v)
         return self.lcd._factor(mi.Point2f(u, v), dr.dot(dr.normalize(p_world - y), self.lcd_n))
+
+    def _cells(self, p_world, uv, hit) -> list:
+        """Per pattern, the per-cell terms (S q(y) + kd (1 - ks) q^d(y)) R_c(y) / G(y) at the LCD
+        point uv."""
+        k, side = self.grid, self.grid + 1
+        gu, gv = uv.x * k, uv.y * k
+        col = dr.clip(mi.Int32(dr.floor(gu)), 0, k - 1)
+        row = dr.clip(mi.Int32(dr.floor(gv)), 0, k - 1)
+        fu, fv = gu - mi.Float(col), gv - mi.Float(row)
+        v00 = self.lobe_base + mi.UInt32(row * side + col)
+
+        def bilinear(at):
+            q00, q01 = (dr.gather(mi.Float, self.lobe_grid, at + j, hit) for j in (0, 1))
+            q10, q11 = (dr.gather(mi.Float, self.lobe_grid, at + side + j, hit) for j in (0, 1))
+            return dr.lerp(dr.lerp(q00, q01, fu), dr.lerp(q10, q11, fu), fv)
+
+        lobe = self.s_cells * bilinear(v00) + self.kd_cells * bilinear(v00 + side * side)
+        rel = p_world - self._point(uv.x, uv.y)
+        dist2 = dr.squared_norm(rel)
+        cos_emit = dr.dot(rel, self.lcd_n) * dr.rsqrt(dr.maximum(dist2, 1e-30))
+        per_sr = dr.select(cos_emit > 0, dist2 / dr.maximum(cos_emit, 1e-12), 0.0) * lobe
+        lcd = self.lcd
+        centre = mi.Point2f((dr.clip(dr.floor(uv.x * lcd.w), 0, lcd.w - 1) + 0.5) / lcd.w,
+                            (dr.clip(dr.floor(uv.y * lcd.h), 0, lcd.h - 1) + 0.5) / lcd.h)
+        first = self.b * self.count
+        return [lcd.radiance(centre, mi.Float(1.0), first + p, hit) * per_sr for p in range(self.count)]
 
     def pointwise(self, si, wo, uv, hit) -> list:
         """Per pattern, g_p(wo) (Color3f) for the local light direction wo that meets the LCD at uv."""
@@ -189,11 +233,13 @@ class _ControlVariate:
         g_d = self.kdd * (dr.maximum(w.z, 0.0) / dr.pi * decay)
         d_s = ltc_density(self.m, w)
         base = (self.b * self.count) * (3 * K * K) + mi.UInt32(bi * K + bj)
+        cells = None if self.lobe_grid is None else self._cells(si.p, uv, hit)
         out = []
         for p in range(self.count):
             idx = base + p * (3 * K * K)
             lbar = mi.Color3f(*(dr.gather(mi.Float, self.block_rad, idx + c * (K * K), hit) for c in range(3)))
-            out.append(dr.select(hit, lbar * g_d + self.spec[p] * d_s, 0.0))
+            g = lbar * g_d + self.spec[p] * d_s
+            out.append(dr.select(hit, g if cells is None else g + cells[p], 0.0))
         return out
 
 
@@ -290,6 +336,8 @@ class ImportanceIntegrator(mi.SamplingIntegrator):
         self.cv_blocks = int(props.get("cv_blocks", 8))
         self.ltc_min_roughness = float(props.get("ltc_min_roughness", 0.1))
         self.ltc_min_cos_view = float(props.get("ltc_min_cos_view", 0.1))
+        self.ltc_grid = int(props.get("ltc_grid", 8))
+        self.ltc_cells_min_roughness = float(props.get("ltc_cells_min_roughness", 0.3))
         self.light_sampling = str(props.get("light_sampling", "uniform"))
         self.uniform_share = float(props.get("uniform_share", 0.25))
         if self.light_sampling not in LIGHT_SAMPLINGS:
@@ -307,6 +355,11 @@ class ImportanceIntegrator(mi.SamplingIntegrator):
             raise ValueError(f"importance integrator: cv_blocks must be >= 1, got {self.cv_blocks}")
         if not self.ltc_min_roughness >= 0.0:
             raise ValueError(f"importance integrator: ltc_min_roughness must be >= 0, got {self.ltc_min_roughness}")
+        if self.ltc_grid < 1:
+            raise ValueError(f"importance integrator: ltc_grid must be >= 1, got {self.ltc_grid}")
+        if not self.ltc_cells_min_roughness >= 0.0:
+            raise ValueError(f"importance integrator: ltc_cells_min_roughness must be >= 0, "
+                             f"got {self.ltc_cells_min_roughness}")
         if not 0.0 <= self.ltc_min_cos_view < 1.0:
             raise ValueError(f"importance integrator: ltc_min_cos_view must lie in [0, 1), got {self.ltc_min_cos_view}")
 
@@ -419,9 +472,10 @@ class ImportanceIntegrator(mi.SamplingIntegrator):
         ``seed + b`` and the lane's (texel, sample) index, so its image does not depend on the
         rest of the batch. ``seed`` may be an opaque ``mi.UInt32`` (no recompilation).
 
-        ``control``: None (plain Monte Carlo), or ``(block_radiance, coefficients)``, the flat
-        arrays of :class:`mitsvbrdf.render.control_variate.ControlVariate`; then the result is
-        only the residual's estimate, to which the caller adds the control variate's ``known``.
+        ``control``: None (plain Monte Carlo), or ``(block_radiance, coefficients, lobe_grid)``,
+        the flat arrays of :class:`mitsvbrdf.render.control_variate.ControlVariate` (lobe_grid
+        None unless "ltc-cells"); then the result is only the residual's estimate, to which the
+        caller adds the control variate's ``known``.
         """
         H, W = resolution
         lcd = self.lcd(scene)
@@ -443,7 +497,8 @@ class ImportanceIntegrator(mi.SamplingIntegrator):
         cv = None
         if control is not None:
             n, _, _, _ = shape.bsdf().maps(si, ok)
-            cv = _ControlVariate(lcd, control[0], control[1], self.cv_blocks, b, texel, H * W, P, n, si.wi)
+            cv = _ControlVariate(lcd, control[0], control[1], self.cv_blocks, b, texel, H * W, P, n, si.wi,
+                                 control[2], self.ltc_grid)
         light = _PatternLight(lcd, batch, P, self.uniform_share, b) if self.light_sampling == "patterns" else None
         values = self.direct(scene, sampler, si, ok, first=b * P, count=P, cv=cv, light=light)
         # One kernel for all 3P channels; reduced one by one they would each re-trace the paths.
@@ -460,4 +515,4 @@ class ImportanceIntegrator(mi.SamplingIntegrator):
 
     def to_string(self):
         return (f"ImportanceIntegrator[sampler={self.sampler}, control_variate={self.control_variate}, "
-                f"cv_blocks={self.cv_blocks}, light_sampling={self.light_sampling}]")
+                f"cv_blocks={self.cv_blocks}, ltc_grid={self.ltc_grid}, light_sampling={self.light_sampling}]")

@@ -92,17 +92,19 @@ def render_mitsuba(svbrdf, patterns: Tensor, rig: Rig, *, spp: int = 64, seed: i
     if integrator.control_variate != "none":
         cv = control_variate(svbrdf, patterns, rig, mode=integrator.control_variate,
                              blocks=integrator.cv_blocks, ltc_min_roughness=integrator.ltc_min_roughness,
-                             ltc_min_cos_view=integrator.ltc_min_cos_view)
+                             ltc_min_cos_view=integrator.ltc_min_cos_view, ltc_grid=integrator.ltc_grid,
+                             ltc_cells_min_roughness=integrator.ltc_cells_min_roughness)
 
     @dr.wrap(source="torch", target="drjit")
-    def batch(normal, diffuse, roughness, specular, drive, seed_value, block_rad, coeffs):
+    def batch(normal, diffuse, roughness, specular, drive, seed_value, block_rad, coeffs, lobe_grid):
         params["sample.bsdf.normal"] = normal
         params["sample.bsdf.diffuse"] = diffuse
         params["sample.bsdf.roughness"] = roughness
         params["sample.bsdf.specular"] = specular
         params["lcd.emitter.data"] = drive
         params.update()
-        control = None if cv is None else (block_rad.array, coeffs.array)
+        control = None if cv is None else (block_rad.array, coeffs.array,
+                                           None if cv.lobe_grid is None else lobe_grid.array)
         return integrator.render_texels(scene, (H, W), spp, seed_value, batch=B, control=control)
 
     def stacked(t):  # (B, C, H, W) -> (B * H, W, C): the plugin's layout, materials along rows
@@ -114,6 +116,7 @@ def render_mitsuba(svbrdf, patterns: Tensor, rig: Rig, *, spp: int = 64, seed: i
                    stacked(svbrdf.specular), patterns.reshape(B * P, *patterns.shape[2:]).contiguous(),
                    dr.opaque(mi.UInt32, seed),
                    empty if cv is None else cv.block_radiance.contiguous(),
-                   empty if cv is None else cv.texel.contiguous())
+                   empty if cv is None else cv.texel.contiguous(),
+                   empty if cv is None or cv.lobe_grid is None else cv.lobe_grid.contiguous())
     images = images.reshape(B, P, 3, H, W)
     return images if cv is None else images + cv.known

@@ -12,7 +12,7 @@ Parameters:
                      of a texel form an Owen-scrambled (0, 2)-sequence, every dimension pair
                      shuffled against the others). ``sample`` (``mi.render``) uses the scene's
                      own sampler.
-    control_variate  (string, default "ltc") what is known in closed form
+    control_variate  (string, default "ltc-cells") what is known in closed form
                      (:mod:`mitsvbrdf.render.control_variate` computes it; the pointwise part is
                      :mod:`mitsvbrdf_plugins.lcd_integrals`): "none" (plain Monte Carlo),
                      "diffuse" (the diffuse term under block-averaged patterns), "ltc" (the
@@ -35,10 +35,10 @@ Parameters:
     ltc_min_roughness (float, default 0.1) below this roughness the specular lobe is left to
                      Monte Carlo alone: a near-mirror LTC lobe that misses the true one by a
                      fraction of its width would make the residual spikier, not smoother.
-    ltc_grid         (integer, default 8) "ltc-cells": the lobe is interpolated bilinearly from
+    ltc_grid         (integer, default 16) "ltc-cells": the lobe is interpolated bilinearly from
                      its values at the (ltc_grid + 1)^2 vertices of a grid over the LCD (it must
                      divide the LCD's cell counts); (ltc_grid + 1)^2 floats per texel.
-    ltc_cells_min_roughness (float, default 0.3) "ltc-cells": below this roughness the lobe is too
+    ltc_cells_min_roughness (float, default 0.2) "ltc-cells": below this roughness the lobe is too
                      narrow for the grid, and the one-radiance term of "ltc" stays.
 
 The emission decay, gamma and colour matrix of the scene's display model all apply: the control
@@ -332,12 +332,12 @@ class ImportanceIntegrator(mi.SamplingIntegrator):
         mi.SamplingIntegrator.__init__(self, props)
         self.hide_emitters = bool(props.get("hide_emitters", True))
         self.sampler = str(props.get("sampler", "stratified"))
-        self.control_variate = str(props.get("control_variate", "ltc"))
+        self.control_variate = str(props.get("control_variate", "ltc-cells"))
         self.cv_blocks = int(props.get("cv_blocks", 8))
         self.ltc_min_roughness = float(props.get("ltc_min_roughness", 0.1))
         self.ltc_min_cos_view = float(props.get("ltc_min_cos_view", 0.1))
-        self.ltc_grid = int(props.get("ltc_grid", 8))
-        self.ltc_cells_min_roughness = float(props.get("ltc_cells_min_roughness", 0.3))
+        self.ltc_grid = int(props.get("ltc_grid", 16))
+        self.ltc_cells_min_roughness = float(props.get("ltc_cells_min_roughness", 0.2))
         self.light_sampling = str(props.get("light_sampling", "uniform"))
         self.uniform_share = float(props.get("uniform_share", 0.25))
         if self.light_sampling not in LIGHT_SAMPLINGS:

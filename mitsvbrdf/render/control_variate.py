@@ -206,9 +206,9 @@ def _peak_block(rig: Rig, x: Tensor, d: Tensor, k: int) -> tuple[Tensor, Tensor]
 MODES = ("diffuse", "ltc", "ltc-cells")
 
 
-def control_variate(svbrdf, patterns: Tensor, rig: Rig, *, mode: str = "ltc", blocks: int = 8,
-                    ltc_min_roughness: float = 0.1, ltc_min_cos_view: float = 0.1, ltc_grid: int = 8,
-                    ltc_cells_min_roughness: float = 0.3) -> ControlVariate:
+def control_variate(svbrdf, patterns: Tensor, rig: Rig, *, mode: str = "ltc-cells", blocks: int = 8,
+                    ltc_min_roughness: float = 0.1, ltc_min_cos_view: float = 0.1, ltc_grid: int = 16,
+                    ltc_cells_min_roughness: float = 0.2) -> ControlVariate:
     """The control variate of B materials under P patterns ((P, 3, h, w) or (B, P, 3, h, w)).
 
     ``mode``: "diffuse", "ltc" (diffuse + specular under one radiance per texel) or "ltc-cells"

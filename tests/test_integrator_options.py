@@ -29,16 +29,17 @@ if backend.find_libllvm() is None:  # pragma: no cover - depends on the machine
 
 SCENE = DEFAULT_SCENE
 
-#: name -> integrator options (the scene file's default is "ltc-cv")
+#: name -> integrator options (the scene file's default is "ltc-cells")
 OPTIONS = {
     "plain": {"sampler": "independent", "control_variate": "none"},
     "stratified": {"sampler": "stratified", "control_variate": "none"},
     "diffuse-cv": {"sampler": "stratified", "control_variate": "diffuse"},
-    "ltc-cv": {},
+    "ltc-cv": {"control_variate": "ltc"},
     "ltc-cv-independent": {"sampler": "independent", "control_variate": "ltc"},
-    "ltc-cv-4-blocks": {"cv_blocks": 4},
-    "ltc-cells": {"control_variate": "ltc-cells"},
-    "pattern-light": {"light_sampling": "patterns"},
+    "ltc-cv-4-blocks": {"control_variate": "ltc", "cv_blocks": 4},
+    "ltc-cells": {},
+    "ltc-cells-8-grid": {"control_variate": "ltc-cells", "ltc_grid": 8, "ltc_cells_min_roughness": 0.3},
+    "pattern-light": {"control_variate": "ltc", "light_sampling": "patterns"},
     "plain-pattern-light": {"sampler": "independent", "control_variate": "none", "light_sampling": "patterns"},
 }
 DISPLAY = {
@@ -339,6 +340,22 @@ def test_blocks_that_do_not_tile_the_lcd_are_a_clear_error(tmp_path):
     path = scene_with(tmp_path / "blocks.xml", {"cv_blocks": 5})
     with pytest.raises(ValueError, match="cv_blocks = 5"):
         ms.render(flat_material(4), pt.uniform(), ms.Rig.from_scene(path), method="mitsuba", spp=1)
+
+
+def test_the_benchmarks_default_estimator_is_the_integrators_default():
+    """benchmarks/estimators.py spells every estimator's options out; the one it calls the
+    default must be what the scene file's integrator does without options."""
+    import importlib.util
+
+    path = Path(__file__).resolve().parents[1] / "benchmarks" / "estimators.py"
+    spec = importlib.util.spec_from_file_location("estimators", path)
+    est = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(est)
+    from mitsvbrdf.render.mitsuba import load_scene
+
+    _, _, _, integrator = load_scene(str(SCENE), "llvm_ad_rgb")
+    for key, value in est.ESTIMATORS[est.DEFAULT].items():
+        assert getattr(integrator, key) == value, key
 
 
 def test_a_grid_that_does_not_tile_the_lcd_is_a_clear_error(tmp_path):

@@ -32,10 +32,12 @@ from training_renderer import (MAPS, paired_lines, probe_seconds_per_step, score
                                 study_parser, study_runs, table_lines, train)
 
 WEIGHTS = "loss.map_weights=[5.0, 1.0, 1.0, 1.0]"
+#: The integrator the recorded study ran with (the default then), kept so that a rerun reproduces it.
+LTC_CV = {"control_variate": "ltc"}
 RUNS = {
-    "images-4spp": (['render.method="mitsuba"', "render.spp=4", WEIGHTS], None),
-    "ratio-4spp": (['render.method="mitsuba"', "render.spp=4", WEIGHTS, "model.diffuse_ratio=true"], None),
-    "ratio-16spp": (['render.method="mitsuba"', "render.spp=16", WEIGHTS, "model.diffuse_ratio=true"], None),
+    "images-4spp": (['render.method="mitsuba"', "render.spp=4", WEIGHTS], LTC_CV),
+    "ratio-4spp": (['render.method="mitsuba"', "render.spp=4", WEIGHTS, "model.diffuse_ratio=true"], LTC_CV),
+    "ratio-16spp": (['render.method="mitsuba"', "render.spp=16", WEIGHTS, "model.diffuse_ratio=true"], LTC_CV),
 }
 BASE = "images-4spp"
 

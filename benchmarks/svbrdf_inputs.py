@@ -10,7 +10,8 @@ The protocol is benchmarks/training_renderer.py's (whose functions it uses): eve
 seed 4, here with the chains' normal weight (``loss.map_weights = [5, 1, 1, 1]``); runs differ only
 in what the name says:
 
-* ``images-4spp``: the paper's inputs, captures from the default integrator at 4 spp;
+* ``images-4spp``: the paper's inputs, captures at 4 spp from the integrator with the ``ltc``
+  control variate (the default when the study was recorded);
 * ``ratio-4spp``: the same plus the diffuse-ratio inputs log((I + f) / (L^d + f));
 * ``ratio-16spp``: the same at 16 spp (a quarter of the capture noise, docs/benchmarks/render_tradeoff.md).
 

@@ -24,6 +24,7 @@ def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
     ap.add_argument("runs", nargs="*", type=Path, help="run folders (default: every runs/* with a metrics.csv)")
     ap.add_argument("--out", type=Path, default=ROOT / "docs" / "benchmarks")
+    ap.add_argument("--about", default="", help="a sentence on what the runs are, printed under the command")
     args = ap.parse_args()
     runs = args.runs or sorted(p.parent for p in (ROOT / "runs").glob("*/metrics.csv"))
     if not runs:
@@ -46,7 +47,9 @@ def main() -> None:
             if (run / name).exists():
                 shutil.copy(run / name, dest / name)
     # run folders by name only: where they lay on the machine that trained them is not the point
-    text = ("Command: `python benchmarks/training_log.py " + " ".join(f".../{r.name}" for r in runs) + "`\n\n"
+    about = f"{args.about} " if args.about else ""
+    text = ("Command: `python benchmarks/training_log.py " + " ".join(f".../{r.name}" for r in runs)
+            + (f" --about '{args.about}'" if args.about else "") + "`\n\n" + about +
             "Mean of each logged loss term over the first and the last 10% of the logged steps "
             "(each run's metrics.csv and loss.png are copied to training_runs/).\n\n"
             "| run | term | steps | first 10% | last 10% | last / first |\n|---|---|---:|---:|---:|---:|\n" +

@@ -20,8 +20,9 @@ estimator's worst 4-spp error (the goal: <= 0.05).
 
 Estimators (:data:`ESTIMATORS`, integrator options in a copy of the scene file): "plain" (the
 integrator before control variates: independent samples, no control variate), "stratified",
-"diffuse-cv", "ltc-cv" (the default), "ltc-cv" with 4 and 16 blocks, and "ltc-cv" with the LCD sampled by the
-patterns' brightness.
+"diffuse-cv", "ltc-cv" (one radiance per texel for the specular lobe), "ltc-cv" with 4 and 16
+blocks and with the LCD sampled by the patterns' brightness, and "ltc-cells" (the default: both
+lobes under every cell's radiance, lobe grid 16) with grids 8 and 32.
 Prints tables, writes CSV + markdown, and plots of error vs. time and vs. spp.
 """
 

@@ -39,8 +39,9 @@ disagree. Two terms (either may be switched off by the scene file's integrator o
   rectangle's centre, so the integral is exact and cheap:
   ``S sum_v q_v T_{p,v}``, ``T_{p,v} = sum_c t_v(c) R_{p,c} A_c`` with t_v(c) the bilinear
   weight of vertex v at cell c's centre: a fixed linear map of the pattern. The residual is then
-  ``L e (f cos / L e - S q / G)``-like: the pattern factors out, and what is left is the LTC fit's
-  and the interpolation's error, whatever the pattern. Below ``ltc_cells_min_roughness`` the lobe
+  ``R_c(y) (f cos d(y) - S q(y) / G(y))`` (f cos the BRDF times the cosine, d(y) the decay's
+  cosine factor; up to the position factor's change within a cell): the pattern factors out, and
+  what is left is the LTC fit's and the interpolation's error, whatever the pattern. Below ``ltc_cells_min_roughness`` the lobe
   is too narrow for the grid and the one-radiance term stays. The diffuse lobe goes the same way
   in this mode (``q^d_v = (n . w_v)^+ / pi G_v d_v``, weight kd (1 - ks)) in place of the block
   term: block means miss a sparse pattern's detail under it as well, and any q keeps the

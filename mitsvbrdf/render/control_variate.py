@@ -41,8 +41,8 @@ disagree. Two terms (either may be switched off by the scene file's integrator o
   weight of vertex v at cell c's centre: a fixed linear map of the pattern. The residual is then
   ``R_c(y) (f cos d(y) - S q(y) / G(y))`` (f cos the BRDF times the cosine, d(y) the decay's
   cosine factor; up to the position factor's change within a cell): the pattern factors out, and
-  what is left is the LTC fit's and the interpolation's error, whatever the pattern. Below ``ltc_cells_min_roughness`` the lobe
-  is too narrow for the grid and the one-radiance term stays. The diffuse lobe goes the same way
+  what is left is the LTC fit's and the interpolation's error, whatever the pattern. Below
+  ``ltc_cells_min_roughness`` the lobe is too narrow for the grid and the one-radiance term stays. The diffuse lobe goes the same way
   in this mode (``q^d_v = (n . w_v)^+ / pi G_v d_v``, weight kd (1 - ks)) in place of the block
   term: block means miss a sparse pattern's detail under it as well, and any q keeps the
   integral exact, also where the LCD crosses the horizon of n.
@@ -53,8 +53,8 @@ seconds per block to compile, and a per-block contraction there cost more in gat
 whole render; torch does the contraction as one batched matrix product. A specular term resolved
 per block (K^2 clipped LTC polygons per texel) would follow sparse patterns under wide lobes, but
 costs K^2 times the one polygon per texel used here; the per-cell term ("ltc-cells") gets the
-pattern's detail for the price of (k + 1)^2 lobe evaluations per texel instead. Choosing c_p as the lobe-weighted mean of
-the block radiances instead of the radiance at the peak left the procedural study's errors about
+pattern's detail for the price of (k + 1)^2 lobe evaluations per texel instead. Choosing c_p as
+the lobe-weighted mean of the block radiances instead of the radiance at the peak left the procedural study's errors about
 where they were, so the simpler choice stays.
 
 Shapes: B materials, P patterns, texels in row-major (H, W) order. Everything is differentiable
@@ -135,8 +135,9 @@ def _block_form_factors(rig: Rig, height: int, width: int, k: int) -> Tensor:
 @lru_cache(maxsize=8)
 def _grid_geometry(rig: Rig, height: int, width: int, k: int) -> tuple[Tensor, Tensor]:
     """Per texel x and LCD grid vertex v (geometry only, float32): (N, 3, V) the unit world
-    direction to v (world axes on the middle axis, for batched products), and (N, V) G_v d_v = cos(theta_lcd) / r^2 times the decay's
-    cosine factor (0 where v does not face x); V = (k + 1)^2, vertices row-major."""
+    direction to v (world axes on the middle axis, for batched products), and (N, V)
+    G_v d_v = cos(theta_lcd) / r^2 times the decay's cosine factor (0 where v does not face x);
+    V = (k + 1)^2, vertices row-major."""
     lcd = rig.lcd_geometry(dtype=torch.float64)
     uv = _block_uv(k).reshape(-1, 2)
     x = rig.surface_points((height, width)).double().reshape(-1, 3)

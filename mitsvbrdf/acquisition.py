@@ -31,7 +31,7 @@ tensors without the batch dimension.
 from __future__ import annotations
 
 import math
-from dataclasses import asdict, dataclass, fields
+from dataclasses import asdict, dataclass, fields, replace
 from pathlib import Path
 from typing import Callable
 
@@ -270,7 +270,7 @@ class AdaptiveAcquisition(torch.nn.Module):
         super().__init__()
         settings = settings or AcquisitionSettings()
         if settings.lpdf_from == "ground_truth":  # no ground truth at acquisition time
-            settings = AcquisitionSettings("initializer", settings.lpdf_stride, settings.use_spec)
+            settings = replace(settings, lpdf_from="initializer")
         _check_use_spec(reconstructor, settings.use_spec)
         h, w = rig.lcd_cells
         if tuple(l0.shape) != (3, h, w):
@@ -395,7 +395,7 @@ def load_adaptive(path: str | Path, rig: Rig, *, lpdf_from: str | None = None) -
     nets = {k: network_from_record(recs[k], f"{path}: {k}").eval() for k in ADAPTIVE_NETWORKS}
     settings = AcquisitionSettings.from_record(stored, str(path), use_spec=getattr(nets["svbrdf"], "use_spec", True))
     if lpdf_from is not None:
-        settings = AcquisitionSettings(lpdf_from, settings.lpdf_stride, settings.use_spec)
+        settings = replace(settings, lpdf_from=lpdf_from)
     with torch.no_grad():
         l0 = nets["l0"]()[0]
     try:

@@ -183,6 +183,15 @@ def test_networks_trained_on_the_true_lpdf_acquire_from_the_initializer(rig, tmp
     assert load_adaptive(_save(tmp_path / "n.pt", stage), rig).settings.lpdf_from == "initializer"
 
 
+@pytest.mark.parametrize("trained_on, override", [("initializer", "uniform"), ("ground_truth", None)])
+def test_a_changed_lpdf_source_keeps_the_other_settings(rig, tmp_path, trained_on, override):
+    stage = _stage(rig, lighting_width=4, svbrdf_width=4, lpdf_from=trained_on, lpdf_stride=8,
+                   lpdf_cell_order=1, lpdf_lobe_grid=16)
+    got = load_adaptive(_save(tmp_path / "n.pt", stage), rig, lpdf_from=override).settings
+    assert got.lpdf_from == (override or "initializer")
+    assert (got.lpdf_stride, got.lpdf_quadrature) == (8, QuadratureSettings(cell_order=1, lobe_grid=16))
+
+
 def test_settings_that_contradict_the_networks_are_a_clear_error(rig, tmp_path):
     stage = _stage(rig, lighting_width=4, svbrdf_width=4, use_spec=True)
     path = _save(tmp_path / "n.pt", stage, settings={"use_spec": False})

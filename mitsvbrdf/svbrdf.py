@@ -139,6 +139,22 @@ def srgb_to_linear(x: Tensor) -> Tensor:
     return torch.where(x <= 0.04045, x / 12.92, ((x.clamp_min(0) + 0.055) / 1.055) ** 2.4)
 
 
+def resample_texels(t: Tensor, size: tuple[int, int]) -> Tensor:
+    """``(..., C, H, W)`` -> ``(..., C, h, w)``: area averages when no axis grows (each new texel
+    the mean over the old ones it covers; for linear radiance, what a coarser sensor records),
+    bilinear interpolation otherwise. Returns ``t`` itself when the size is already that."""
+    h, w = size
+    if tuple(t.shape[-2:]) == (h, w):
+        return t
+    lead = t.shape[:-3]
+    x = t.reshape(-1, *t.shape[-3:])
+    if h <= t.shape[-2] and w <= t.shape[-1]:
+        x = torch.nn.functional.interpolate(x, size=(h, w), mode="area")
+    else:
+        x = torch.nn.functional.interpolate(x, size=(h, w), mode="bilinear", align_corners=False)
+    return x.reshape(*lead, *x.shape[-3:])
+
+
 # ---- the container -----------------------------------------------------------------------------
 
 
@@ -305,16 +321,10 @@ class SVBRDF:
             raise MaterialError(f"cannot resize a material to {h}x{w} texels")
         if self.resolution == (h, w):
             return self
-        H, W = self.resolution
-
-        def resample(t: Tensor) -> Tensor:
-            if h <= H and w <= W:
-                return torch.nn.functional.interpolate(t, size=(h, w), mode="area")
-            return torch.nn.functional.interpolate(t, size=(h, w), mode="bilinear", align_corners=False)
-
-        maps = {k: resample(v) for k, v in self.maps().items()}
+        maps = {k: resample_texels(v, (h, w)) for k, v in self.maps().items()}
         maps["normal"] = maps["normal"] / torch.linalg.vector_norm(maps["normal"], dim=1, keepdim=True).clamp_min(1e-12)
-        return SVBRDF(**maps, render=None if self.render is None else resample(self.render), name=self.name)
+        render = None if self.render is None else resample_texels(self.render, (h, w))
+        return SVBRDF(**maps, render=render, name=self.name)
 
     def requires_grad_(self, requires_grad: bool = True) -> SVBRDF:
         """Set ``requires_grad`` on the four maps (leaf tensors) in place; returns self."""

@@ -12,7 +12,7 @@ from PIL import Image
 
 from mitsvbrdf import imageio
 from mitsvbrdf.errors import ImageFileError, MaterialError
-from mitsvbrdf.svbrdf import MAP_NAMES, SVBRDF, decode_maps, encode_maps
+from mitsvbrdf.svbrdf import MAP_NAMES, SVBRDF, decode_maps, encode_maps, resample_texels
 
 from conftest import SAMPLES, needs_samples
 
@@ -502,6 +502,15 @@ def test_resizing_keeps_unit_normals_and_the_name():
 def test_resizing_to_the_same_size_is_the_material_itself():
     m = SVBRDF.constant(size=4)
     assert m.resized(4) is m
+
+
+def test_texel_resampling_keeps_the_leading_dimensions():
+    images = torch.rand(2, 5, 3, 8, 8)  # (B, P, 3, H, W)
+    small = resample_texels(images, (4, 4))
+    assert small.shape == (2, 5, 3, 4, 4)
+    assert torch.allclose(small[1, 3, 2, 0, 0], images[1, 3, 2, :2, :2].mean())
+    assert resample_texels(small, (8, 8)).shape == (2, 5, 3, 8, 8)
+    assert resample_texels(images, (8, 8)) is images
 
 
 def test_resizing_to_no_texels_is_refused():

@@ -25,7 +25,8 @@ The learned parts are injected as modules, so the same code serves trained weigh
   ``diffuse_ratio`` attribute is true is also given ``irradiance=`` the patterns' L^d (B, P, 3, H, W).
 
 Images are linear radiance on the sample's texel grid. Single-material calls take and return
-tensors without the batch dimension.
+tensors without the batch dimension. A capture finer than the networks' training grid is
+reconstructed across the two grids, in the ``transfer`` mode of :mod:`mitsvbrdf.resolution`.
 """
 
 from __future__ import annotations
@@ -46,6 +47,7 @@ from .nets.io import read_network_file
 from .patterns import prepend_pattern
 from .render import render
 from .render.quadrature import QuadratureSettings
+from .resolution import DEFAULT_TRANSFER, check_transfer, prediction_input, reconstruct_across
 from .rig import Rig
 from .separation import diffuse_irradiance, separate_specular
 from .svbrdf import SVBRDF
@@ -82,6 +84,9 @@ class AcquisitionSettings:
             renderer's. L_pdf's error is dominated by the texel stride, not by these: at 64 px,
             stride 4, orders (1, 16) cost a fifth of (2, 32) for the same error
             (``benchmarks/lpdf_cost.py``, docs/benchmarks/lpdf_cost.md).
+        resolution: texels a side of the materials the networks trained on (``data.size``); finer
+            captures are reconstructed across the two grids (:mod:`mitsvbrdf.resolution`). None
+            (exports written before it was recorded): every capture on its own grid.
     """
 
     lpdf_from: str = "initializer"
@@ -89,6 +94,7 @@ class AcquisitionSettings:
     use_spec: bool = True
     lpdf_cell_order: int = 2
     lpdf_lobe_grid: int = 32
+    resolution: int | None = None
 
     LPDF_SOURCES = ("initializer", "uniform", "ground_truth")
 
@@ -103,6 +109,9 @@ class AcquisitionSettings:
             v = getattr(self, name)
             if isinstance(v, bool) or not isinstance(v, int) or v < lo:
                 raise MitsvbrdfError(f"{name} must be an integer >= {lo}, got {v!r}")
+        r = self.resolution
+        if r is not None and (isinstance(r, bool) or not isinstance(r, int) or r < 1):
+            raise MitsvbrdfError(f"resolution must be an integer >= 1 or absent, got {r!r}")
 
     @property
     def lpdf_quadrature(self) -> QuadratureSettings:
@@ -263,11 +272,15 @@ class AdaptiveAcquisition(torch.nn.Module):
         l0, initializer, lighting, reconstructor: see the module docstring.
         rig: the capture rig (L_pdf and the separation need its geometry and display model).
         settings: how the networks were trained (:class:`AcquisitionSettings`).
+        transfer: how a capture finer than ``settings.resolution`` is reconstructed: "fused"
+            (default), "coarse" or "native" (:mod:`mitsvbrdf.resolution`).
     """
 
     def __init__(self, l0: Tensor, initializer: torch.nn.Module, lighting: torch.nn.Module,
-                 reconstructor: torch.nn.Module, rig: Rig, settings: AcquisitionSettings | None = None):
+                 reconstructor: torch.nn.Module, rig: Rig, settings: AcquisitionSettings | None = None,
+                 transfer: str = DEFAULT_TRANSFER):
         super().__init__()
+        self.transfer = check_transfer(transfer)
         settings = settings or AcquisitionSettings()
         if settings.lpdf_from == "ground_truth":  # no ground truth at acquisition time
             settings = replace(settings, lpdf_from="initializer")
@@ -291,15 +304,18 @@ class AdaptiveAcquisition(torch.nn.Module):
 
     @torch.no_grad()
     def predict_patterns(self, i0: Tensor) -> tuple[Tensor, Tensor, SVBRDF]:
-        """I_0 (B, 3, H, W) -> (adaptive patterns (B, 4, 3, h, w), L_pdf (B, 1, h, w), initial SVBRDF)."""
-        p = predict(self.initializer, self.lighting, i0, self.rig, self.settings)
-        return p.patterns, p.lpdf, p.initial
+        """I_0 (B, 3, H, W) -> (adaptive patterns (B, 4, 3, h, w), L_pdf (B, 1, h, w), initial
+        SVBRDF (B, H, W)); predicted on the working grid of the transfer mode."""
+        p = predict(self.initializer, self.lighting, prediction_input(i0, self.settings.resolution, self.transfer),
+                    self.rig, self.settings)
+        return p.patterns, p.lpdf, p.initial.resized(tuple(i0.shape[-2:]))
 
     @torch.no_grad()
     def reconstruct(self, images: Tensor, patterns: Tensor) -> SVBRDF:
         """Images (B, 5, 3, H, W) under patterns (B, 5, 3, h, w) -> the reconstructed SVBRDF."""
-        return maps_to_svbrdf(reconstruct_maps(self.reconstructor, images, patterns, self.rig,
-                                               use_spec=self.settings.use_spec))
+        return maps_to_svbrdf(reconstruct_across(
+            lambda imgs: reconstruct_maps(self.reconstructor, imgs, patterns, self.rig, use_spec=self.settings.use_spec),
+            images, self.settings.resolution, self.transfer))
 
     def all_patterns(self, adaptive: Tensor) -> Tensor:
         """L_0 prepended to adaptive patterns (B, 4, 3, h, w) -> (B, 5, 3, h, w)."""
@@ -334,10 +350,14 @@ class FixedAcquisition(torch.nn.Module):
     """A baseline: the same ``patterns`` (P, 3, h, w) for every material, then G_sc.
 
     Its simulated capture renders all patterns in one pass with the seed itself (not per step).
+    ``resolution`` and ``transfer`` are :class:`AdaptiveAcquisition`'s (G_sc's training grid, and
+    how finer captures are reconstructed).
     """
 
-    def __init__(self, patterns: Tensor, reconstructor: torch.nn.Module, rig: Rig, *, use_spec: bool):
+    def __init__(self, patterns: Tensor, reconstructor: torch.nn.Module, rig: Rig, *, use_spec: bool,
+                 resolution: int | None = None, transfer: str = DEFAULT_TRANSFER):
         super().__init__()
+        self.resolution, self.transfer = resolution, check_transfer(transfer)
         if tuple(patterns.shape[1:]) != (3, *rig.lcd_cells):
             raise MitsvbrdfError(f"patterns {tuple(patterns.shape[1:])} do not fit this rig's LCD "
                                  f"{(3, *rig.lcd_cells)}")
@@ -348,7 +368,9 @@ class FixedAcquisition(torch.nn.Module):
     @torch.no_grad()
     def acquire(self, capture: CaptureFn) -> Acquisition:
         images = capture(self.patterns[None])
-        maps = reconstruct_maps(self.reconstructor, images, self.patterns, self.rig, use_spec=self.use_spec)
+        maps = reconstruct_across(
+            lambda imgs: reconstruct_maps(self.reconstructor, imgs, self.patterns, self.rig, use_spec=self.use_spec),
+            images, self.resolution, self.transfer)
         return Acquisition(self.patterns, images[0], maps_to_svbrdf(maps))
 
     def simulate(self, svbrdf: SVBRDF, method: str = "mitsuba", spp: int = 64, seed: int = 0) -> Acquisition:
@@ -357,17 +379,21 @@ class FixedAcquisition(torch.nn.Module):
 
 class FlashAcquisition(torch.nn.Module):
     """The flash baseline: one image under ``flash`` (a :class:`mitsvbrdf.relight.FlashLight`), then
-    ``reconstructor(images (1, 1, 3, H, W))``. Its record shows a black LCD pattern: the LCD is off."""
+    ``reconstructor(images (1, 1, 3, H, W))``. Its record shows a black LCD pattern: the LCD is off.
+    ``resolution`` and ``transfer`` as for :class:`FixedAcquisition`."""
 
-    def __init__(self, flash: torch.nn.Module, reconstructor: torch.nn.Module, rig: Rig):
+    def __init__(self, flash: torch.nn.Module, reconstructor: torch.nn.Module, rig: Rig, *,
+                 resolution: int | None = None, transfer: str = DEFAULT_TRANSFER):
         super().__init__()
         self.flash, self.reconstructor, self.rig = flash, reconstructor, rig
+        self.resolution, self.transfer = resolution, check_transfer(transfer)
 
     @torch.no_grad()
     def simulate(self, svbrdf: SVBRDF, **_ignored) -> Acquisition:
         images = self.flash(svbrdf, self.rig)
         dark = torch.zeros(1, 3, *self.rig.lcd_cells)
-        return Acquisition(dark, images[0], maps_to_svbrdf(self.reconstructor(images)))
+        maps = reconstruct_across(self.reconstructor, images, self.resolution, self.transfer)
+        return Acquisition(dark, images[0], maps_to_svbrdf(maps))
 
 
 # ---- networks files ------------------------------------------------------------------------
@@ -384,10 +410,12 @@ def read_networks(path: str | Path, what: str = "networks", hint: str = "") -> t
     return recs, recs.pop(SETTINGS_KEY, None)
 
 
-def load_adaptive(path: str | Path, rig: Rig, *, lpdf_from: str | None = None) -> AdaptiveAcquisition:
+def load_adaptive(path: str | Path, rig: Rig, *, lpdf_from: str | None = None,
+                  transfer: str = DEFAULT_TRANSFER) -> AdaptiveAcquisition:
     """The adaptive acquisition from a ``networks.pt`` export of stage 2 or the fine-tuning, with
     the settings it was trained with (files without them: L_pdf from the initializer at stride 4,
-    ``use_spec`` as G_sc was built). ``lpdf_from`` overrides the file's source of L_pdf."""
+    ``use_spec`` as G_sc was built). ``lpdf_from`` overrides the file's source of L_pdf;
+    ``transfer`` is :class:`AdaptiveAcquisition`'s."""
     recs, stored = read_networks(path, "networks", " (train the stages, see docs/training.md)")
     if any(k not in recs for k in ADAPTIVE_NETWORKS):
         raise NetworkFileError(f"{path}: an acquisition needs networks {list(ADAPTIVE_NETWORKS)}, the file has "
@@ -399,25 +427,28 @@ def load_adaptive(path: str | Path, rig: Rig, *, lpdf_from: str | None = None) -
     with torch.no_grad():
         l0 = nets["l0"]()[0]
     try:
-        return AdaptiveAcquisition(l0, nets["initializer"], nets["lighting"], nets["svbrdf"], rig, settings)
+        return AdaptiveAcquisition(l0, nets["initializer"], nets["lighting"], nets["svbrdf"], rig, settings, transfer)
     except MitsvbrdfError as e:
         raise NetworkFileError(f"{path}: {e}") from e
 
 
-def load_baseline(path: str | Path, rig: Rig) -> FixedAcquisition | FlashAcquisition:
+def load_baseline(path: str | Path, rig: Rig, *, transfer: str = DEFAULT_TRANSFER) -> FixedAcquisition | FlashAcquisition:
     """A baseline from the ``networks.pt`` export of a ``fixed`` training stage: its pattern group
-    (fixed or learned) or its flash, and its G_sc. Raises NetworkFileError for other files."""
+    (fixed or learned) or its flash, and its G_sc, reconstructing finer captures in ``transfer``
+    mode. Raises NetworkFileError for other files."""
     recs, stored = read_networks(path, "baseline networks")
     if "svbrdf" not in recs or not ({"patterns", "flash"} & set(recs)):
         raise NetworkFileError(f"{path}: a baseline needs networks 'svbrdf' and 'patterns' (or 'flash'), "
                                f"the file has {sorted(recs)} (use the export of a 'fixed' stage)")
     net = network_from_record(recs["svbrdf"], f"{path}: svbrdf").eval()
-    if "flash" in recs:
-        return FlashAcquisition(network_from_record(recs["flash"], f"{path}: flash"), net, rig)
     settings = AcquisitionSettings.from_record(stored, str(path), use_spec=getattr(net, "use_spec", True))
+    if "flash" in recs:
+        return FlashAcquisition(network_from_record(recs["flash"], f"{path}: flash"), net, rig,
+                                resolution=settings.resolution, transfer=transfer)
     pats = network_from_record(recs["patterns"], f"{path}: patterns")().detach()
     try:
-        return FixedAcquisition(pats, net, rig, use_spec=settings.use_spec)
+        return FixedAcquisition(pats, net, rig, use_spec=settings.use_spec, resolution=settings.resolution,
+                                transfer=transfer)
     except MitsvbrdfError as e:
         raise NetworkFileError(f"{path}: {e}") from e
 

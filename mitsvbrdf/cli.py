@@ -47,6 +47,7 @@ from .evaluation import evaluate, load_materials, simulated
 from .importance import importance
 from .patterns import load_patterns, pca_patterns
 from .render import QuadratureSettings, render
+from .resolution import DEFAULT_TRANSFER, TRANSFER_HELP, TRANSFER_MODES
 from .rig import DEFAULT_SCENE, Rig
 from .svbrdf import SVBRDF
 from .training import TrainingInterrupted, load_config, train
@@ -162,7 +163,7 @@ def cmd_demo(args: argparse.Namespace) -> int:
     check_out_dir("--out", args.out)
     rec = run_demo(args.out, material=args.material or DEFAULT_MATERIAL, networks=args.networks or DEFAULT_NETWORKS,
                    scene=args.scene, resolution=args.resolution, spp=args.spp, seed=args.seed,
-                   progress=not args.quiet)
+                   transfer=args.transfer, progress=not args.quiet)
     m = rec["metrics"]
     print(f"wrote {args.out}/report.html: map RMSE {m['rmse_average']:.4f} (normal {m['rmse_normal']:.4f}, diffuse "
           f"{m['rmse_diffuse']:.4f}, roughness {m['rmse_roughness']:.4f}, specular {m['rmse_specular']:.4f}), "
@@ -193,12 +194,12 @@ def cmd_evaluate(args: argparse.Namespace) -> int:
     runs += [(*_named(s, "--uniform-lpdf"), "uniform") for s in args.uniform_lpdf or []]
     acquisitions = {}
     for name, path, lpdf_from in runs:
-        acquisitions[name] = load_adaptive(path, rig, lpdf_from=lpdf_from)
+        acquisitions[name] = load_adaptive(path, rig, lpdf_from=lpdf_from, transfer=args.transfer)
     for spec in args.baseline or []:
         name, path = _named(spec, "--baseline")
         if name in acquisitions:
             raise MitsvbrdfError(f"two methods are named {name!r}")
-        acquisitions[name] = load_baseline(path, rig)
+        acquisitions[name] = load_baseline(path, rig, transfer=args.transfer)
     methods = {name: simulated(a, spp=args.spp, seed=args.seed) for name, a in acquisitions.items()}
     # The networks decide which sizes they take: check before any material is loaded or rendered.
     check_resolution(args.size, size_multiple(*acquisitions.values()), "--size")
@@ -348,6 +349,7 @@ def build_parser() -> argparse.ArgumentParser:
     d.add_argument("--resolution", type=int, default=256, help="material resolution (default 256)")
     d.add_argument("--spp", type=int, default=64, help="Mitsuba samples per texel (default 64)")
     d.add_argument("--seed", type=int, default=0)
+    d.add_argument("--transfer", default=DEFAULT_TRANSFER, choices=TRANSFER_MODES, help=TRANSFER_HELP)
     d.add_argument("--quiet", action="store_true", help="no progress bar")
     d.set_defaults(func=cmd_demo)
     e = sub.add_parser("evaluate", help="score the adaptive method (and baselines) on a set of materials")
@@ -366,6 +368,7 @@ def build_parser() -> argparse.ArgumentParser:
     e.add_argument("--spp", type=int, default=64)
     e.add_argument("--seed", type=int, default=0)
     e.add_argument("--scene", default=None)
+    e.add_argument("--transfer", default=DEFAULT_TRANSFER, choices=TRANSFER_MODES, help=TRANSFER_HELP)
     e.add_argument("--figures", type=int, default=None, metavar="N",
                    help="figures for the first N materials only (default: every material)")
     e.add_argument("--out", required=True, help="output folder")

@@ -27,6 +27,7 @@ from .acquisition import DEFAULT_NETWORKS, load_adaptive
 from .checks import check_out_dir
 from .evaluation import Relighting, score
 from .export import export_gltf, export_mitsuba_scene
+from .resolution import DEFAULT_TRANSFER
 from .rig import Rig
 from .svbrdf import SVBRDF
 from .viewing import material_figure, pattern_strip, tonemap, write_html_page
@@ -37,13 +38,14 @@ DEFAULT_MATERIAL = Path(__file__).resolve().parent / "examples" / "artificial_0.
 
 def run_demo(out: str | Path, *, material: str | Path = DEFAULT_MATERIAL, networks: str | Path = DEFAULT_NETWORKS,
              scene: str | Path | None = None, resolution: int = 256, spp: int = 64, seed: int = 0,
-             progress: bool = True) -> dict:
-    """Run the demo (module docstring); returns the record written to ``demo.json``."""
+             transfer: str = DEFAULT_TRANSFER, progress: bool = True) -> dict:
+    """Run the demo (module docstring); returns the record written to ``demo.json``. ``transfer``:
+    how the networks reconstruct a resolution finer than they trained on (:mod:`mitsvbrdf.resolution`)."""
     out = check_out_dir("out", out)
     steps = ["load", "capture + reconstruct", "re-render", "write"]
     t0 = time.perf_counter()
     rig = Rig.from_scene(scene)
-    acquisition = load_adaptive(networks, rig)
+    acquisition = load_adaptive(networks, rig, transfer=transfer)
     acquisition.check_resolution(resolution, "resolution")  # before rendering anything
     gt = SVBRDF.load(material).resized(resolution)
     bar = tqdm(total=len(steps), desc="demo", disable=not progress)
@@ -73,7 +75,7 @@ def run_demo(out: str | Path, *, material: str | Path = DEFAULT_MATERIAL, networ
     export_mitsuba_scene(acq.svbrdf, out / "export" / "mitsuba", rig)
     export_gltf(acq.svbrdf, out / "export" / "gltf", sample_size=rig.sample_size)
     record = {"material": str(material), "networks": str(networks), "resolution": resolution, "spp": spp,
-              "seed": seed, "seconds": {"total": None, "capture_and_reconstruction": round(t2 - t1, 2)},
+              "seed": seed, "transfer": transfer, "trained_resolution": acquisition.settings.resolution, "seconds": {"total": None, "capture_and_reconstruction": round(t2 - t1, 2)},
               "metrics": {k: round(v, 5) for k, v in metrics.items()}}
     record["seconds"]["total"] = round(time.perf_counter() - t0, 2)
     (out / "demo.json").write_text(json.dumps(record, indent=2))
@@ -87,7 +89,8 @@ def _report(out: Path, record: dict) -> None:
     write_html_page(
         out / "report.html", "mitsvbrdf demo",
         paragraphs=[f"{record['material']} at {record['resolution']} px, {record['spp']} spp, "
-                    f"{record['seconds']['total']} s."],
+                    f"{record['seconds']['total']} s. Networks trained at {record['trained_resolution'] or 'an unrecorded'} "
+                    f"px, resolution transfer {record['transfer']!r}."],
         table=(["metric", "value"], list(record["metrics"].items())),
         images=[("Summary", "summary.png"), ("Patterns L0..L4", "patterns.png"), ("Captured images", "images.png"),
                 ("Re-rendered: ground truth (top) vs reconstruction (bottom)", "relit.png"),

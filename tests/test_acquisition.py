@@ -7,8 +7,8 @@ import pytest
 import torch
 
 import mitsvbrdf as ms
-from mitsvbrdf.acquisition import (SETTINGS_KEY, AcquisitionSettings, AdaptiveAcquisition, load_adaptive,
-                                   load_baseline, maps_to_svbrdf, predict)
+from mitsvbrdf.acquisition import (SETTINGS_KEY, AcquisitionSettings, AdaptiveAcquisition, FixedAcquisition,
+                                   load_adaptive, load_baseline, maps_to_svbrdf, predict)
 from mitsvbrdf.errors import MitsvbrdfError
 from mitsvbrdf.importance import importance
 from mitsvbrdf.nets import NetworkFileError, network_record
@@ -210,3 +210,71 @@ def test_a_baseline_export_is_a_fixed_pattern_acquisition(rig, tmp_path):
     acq = load_baseline(_save(tmp_path / "b.pt", stage), rig)
     assert torch.equal(acq.patterns, stage.nets["patterns"]())
     assert acq.simulate(textured_material(8), method="reference").images.shape == (5, 3, 8, 8)
+
+
+# ---- captures finer than the training grid -------------------------------------------------
+
+
+class RecordingInitializer(MeanInitializer):
+    """MeanInitializer that records the texel grid it was given."""
+
+    def forward(self, i0):
+        self.grid = tuple(i0.shape[-2:])
+        return super().forward(i0)
+
+
+class RecordingReconstructor(ImageReconstructor):
+    """ImageReconstructor that records every texel grid it was given."""
+
+    def __init__(self):
+        super().__init__()
+        self.grids = []
+
+    def forward(self, images, spec):
+        self.grids.append(tuple(images.shape[-2:]))
+        return super().forward(images, spec)
+
+
+def _trained_at(rig, resolution, transfer):
+    init, rec = RecordingInitializer(), RecordingReconstructor()
+    acq = AdaptiveAcquisition(torch.full((3, 32, 32), 0.8), init, LpdfLighting(), rec, rig,
+                              AcquisitionSettings(resolution=resolution), transfer=transfer)
+    return acq, init, rec
+
+
+def test_networks_trained_on_a_coarser_grid_predict_patterns_from_the_averaged_first_image(rig):
+    acq, init, rec = _trained_at(rig, 8, "fused")
+    out = acq.simulate(textured_material(16), method="reference")
+    assert init.grid == (8, 8)
+    assert out.initial.resolution == (16, 16)  # the estimate is upsampled to the capture
+    assert rec.grids == [(8, 8), (16, 16)] and out.svbrdf.resolution == (16, 16)
+
+
+def test_native_transfer_runs_every_network_on_the_capture_itself(rig):
+    acq, init, rec = _trained_at(rig, 8, "native")
+    acq.simulate(textured_material(16), method="reference")
+    assert init.grid == (16, 16) and rec.grids == [(16, 16)]
+
+
+def test_an_export_without_a_training_resolution_reconstructs_on_the_capture_grid(rig):
+    acq, init, rec = _trained_at(rig, None, "fused")
+    acq.simulate(textured_material(16), method="reference")
+    assert init.grid == (16, 16) and rec.grids == [(16, 16)]
+
+
+def test_a_fixed_pattern_baseline_reconstructs_across_grids_too(rig):
+    rec = RecordingReconstructor()
+    base = FixedAcquisition(ms.pattern_family("monograd"), rec, rig, use_spec=False, resolution=8, transfer="coarse")
+    out = base.simulate(textured_material(16), method="reference")
+    assert rec.grids == [(8, 8)] and out.svbrdf.resolution == (16, 16)
+
+
+def test_an_unknown_transfer_mode_is_refused(rig):
+    with pytest.raises(MitsvbrdfError, match="transfer must be one of"):
+        _trained_at(rig, 8, "tiles")
+
+
+@pytest.mark.parametrize("bad", [0, 1.5, True, "64"])
+def test_a_bad_training_resolution_is_refused(bad):
+    with pytest.raises(MitsvbrdfError, match="resolution"):
+        AcquisitionSettings(resolution=bad)

@@ -25,7 +25,7 @@ LAYERS = {
     "foundation": ["errors", "checks", "imageio", "backend", "scene_xml"],
     "physics": ["brdf", "rig", "svbrdf", "patterns", "sensor"],
     "renderers": ["render", "relight"],
-    "method": ["importance", "separation", "nets", "losses", "acquisition", "training", "data", ""],
+    "method": ["importance", "separation", "nets", "losses", "resolution", "acquisition", "training", "data", ""],
     "applications": ["evaluation", "metrics", "viewing", "export", "data.preview", "data.encoding", "capture", "cli", "demo",
                      "__main__", "nets.__main__"],
 }

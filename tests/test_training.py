@@ -485,5 +485,7 @@ def test_small_configs_run_as_a_chain_of_stages(tmp_path):
         last = train(load_config(ROOT / "train" / f"{stage}-small.toml", sets), progress=False)
         assert last["step"] == 2 and torch.isfinite(torch.tensor(last["loss"]))
         prev = stage
-    assert set(torch.load(tmp_path / "finetune" / "networks.pt", weights_only=True)) == \
-        {"l0", "initializer", "lighting", "svbrdf", "acquisition"}
+    export = torch.load(tmp_path / "finetune" / "networks.pt", weights_only=True)
+    assert set(export) == {"l0", "initializer", "lighting", "svbrdf", "acquisition"}
+    # the texel grid it trained on, which finer captures are reconstructed across
+    assert export["acquisition"]["resolution"] == load_config(ROOT / "train" / "finetune-small.toml").data.size

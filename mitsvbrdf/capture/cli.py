@@ -16,6 +16,7 @@ import numpy as np
 
 from .. import imageio
 from ..acquisition import DEFAULT_NETWORKS, load_adaptive
+from ..resolution import DEFAULT_TRANSFER, TRANSFER_HELP, TRANSFER_MODES
 from ..checks import check_float, check_int, check_out_dir, check_out_file, check_seed
 from ..errors import MitsvbrdfError
 from ..rig import DEFAULT_SCENE, Rig
@@ -116,7 +117,7 @@ def cmd_capture(args: argparse.Namespace) -> int:
     check_out_dir("--out", args.out)
     rig = Rig.from_scene(args.scene)
     networks = args.networks or str(DEFAULT_NETWORKS)
-    acquisition = load_adaptive(networks, rig)
+    acquisition = load_adaptive(networks, rig, transfer=args.transfer)
     acquisition.check_resolution(args.resolution, "--resolution")  # before the first frame
     material = SVBRDF.load(args.simulate).resized(args.resolution) if args.simulate else None
     display, cam, response, matrix, ctl = _devices(args, rig, material)
@@ -220,6 +221,7 @@ def add_parsers(sub) -> None:
     c.add_argument("--out", required=True, help="session folder (every frame is written as it arrives)")
     c.add_argument("--resume", action="store_true", help="continue the session in --out")
     c.add_argument("--networks", default="", help="networks.pt of stage2/finetune (default: the shipped weights)")
+    c.add_argument("--transfer", default=DEFAULT_TRANSFER, choices=TRANSFER_MODES, help=TRANSFER_HELP)
     c.add_argument("--quiet", action="store_true", help="no progress bar")
     add_device_options(c)
     c.set_defaults(func=cmd_capture)

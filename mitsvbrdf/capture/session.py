@@ -190,8 +190,9 @@ class CaptureSession:
                     "response_sha256": response,
                     "color_matrix": None if capture.color_matrix is None else np.asarray(capture.color_matrix).tolist(),
                     "rig_sha256": rig_digest(acquisition.rig), "networks_sha256": _state_digest(acquisition),
-                    # how the networks acquire (L_pdf source and quadrature, I^spec): same weights, other patterns
-                    "acquisition": acquisition.settings.record(),
+                    # how the networks acquire (L_pdf source and quadrature, I^spec, training grid): same
+                    # weights, other patterns; and how they meet a finer capture
+                    "acquisition": acquisition.settings.record(), "transfer": acquisition.transfer,
                     **{f"camera.{k}": v for k, v in (frame() if frame is not None else {}).items()},
                     **(settings or {})}
         # as the manifest will read it back (tuples become lists), so that a comparison is exact

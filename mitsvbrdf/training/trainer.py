@@ -22,6 +22,7 @@ import math
 import os
 import signal
 import time
+from dataclasses import replace
 from pathlib import Path
 
 import torch
@@ -271,8 +272,9 @@ class Trainer:
         if self.rank == 0:
             recs = {n: network_record(net) for n, net in self.stage.networks().items()}
             settings = self.stage.acquisition_settings()
-            if settings is not None:  # how an acquisition must use them (L_pdf source and stride, I^spec)
-                recs[SETTINGS_KEY] = settings.record()
+            if settings is not None:  # how an acquisition must use them (L_pdf source and stride, I^spec,
+                # the texel grid they trained on)
+                recs[SETTINGS_KEY] = replace(settings, resolution=self.cfg.data.size).record()
             tmp = path.with_suffix(".tmp")
             torch.save(recs, tmp)
             os.replace(tmp, path)

@@ -1,0 +1,103 @@
+"""Resolution transfer: networks trained on one texel grid reconstructing captures on a finer one.
+
+The rig's sample is ``s`` x ``s`` metres whatever the texel grid; networks trained on R x R
+materials learned texels of pitch s / R. A U-Net sees a fixed number of texels around each output
+texel, so on a 256 x 256 capture of the same sample every structure spans 256 / R times more
+texels than in training. The low-frequency cues of the normals (a tilted region shades all five
+images alike, only its neighbourhood tells tilt from albedo) then fall outside what the networks
+see: the shipped networks (R = 64) recover a quarter of the sample materials' normal deviation at
+64 px and almost none at 256 px (``benchmarks/resolution_transfer.py``,
+docs/benchmarks/resolution_transfer.md).
+
+Modes (:data:`TRANSFER_MODES`) for a capture on an H x W grid finer than the networks' R x R
+(:func:`working_grid`; an axis at or below R is kept):
+
+* ``"native"``: every network runs on the capture as it is (the behaviour before this module).
+* ``"coarse"``: the capture is area-averaged to the working grid (:func:`resample_texels`: each
+  coarse texel's mean radiance, what a camera with that many pixels records), the networks run
+  there, as in training, and the maps are upsampled bilinearly. No detail finer than s / R.
+* ``"fused"`` (default): G_sc runs on both grids and the encoded maps keep the coarse run's low
+  band and the native run's high band, a two-level Laplacian pyramid::
+
+      M = up(M_R) + (M_H - up(down(M_H)))
+
+  with ``down`` the area average to R x R and ``up`` the bilinear upsampling to H x W. What the
+  networks were trained to see comes from the coarse run; from the native run only the detail the
+  coarse grid cannot hold. The normal is renormalised when the maps are decoded.
+
+In "coarse" and "fused" the initializer and G_l predict from the area-averaged I_0 as well (the
+patterns live on the LCD's grid, the same for any texel grid), and the initializer's estimate is
+upsampled to H x W. A capture averaged over coarse texels is not exactly a capture of the
+averaged maps (shading is not linear in them); the networks trained on the latter.
+
+Rejected: reconstructing tile by tile at the native pitch (the tiles are the training size in
+texels but a sixteenth of the sample: the same loss of context, with seams); resampling the
+maps of the coarse run only (the "coarse" mode: measured worse than "fused" on the procedural
+materials, whose fine relief it drops).
+"""
+
+from __future__ import annotations
+
+from typing import Callable
+
+from torch import Tensor
+
+from .errors import MitsvbrdfError
+from .svbrdf import resample_texels
+
+#: How networks trained on one texel grid meet a finer capture (module docstring).
+TRANSFER_MODES = ("native", "coarse", "fused")
+
+#: The mode acquisitions use unless told otherwise.
+DEFAULT_TRANSFER = "fused"
+
+#: The command-line help of every ``--transfer`` option.
+TRANSFER_HELP = ("how a capture finer than the networks' training grid is reconstructed: fused (default: the "
+                 "training grid's maps, the capture's own detail on top), coarse (the training grid's maps, "
+                 "upsampled) or native (the networks on the capture as it is)")
+
+
+def check_transfer(mode: str) -> str:
+    """``mode`` if it is one of :data:`TRANSFER_MODES`, else MitsvbrdfError."""
+    if mode not in TRANSFER_MODES:
+        raise MitsvbrdfError(f"transfer must be one of {', '.join(TRANSFER_MODES)}, got {mode!r}")
+    return mode
+
+
+def working_grid(shape: tuple[int, int], trained: int | None) -> tuple[int, int]:
+    """The texel grid (h, w) the networks run on for an H x W capture: each axis capped at the
+    ``trained`` resolution R (None, unknown: the capture's own grid)."""
+    h, w = int(shape[0]), int(shape[1])
+    if trained is None:
+        return h, w
+    return min(h, trained), min(w, trained)
+
+
+def fuse_bands(coarse: Tensor, fine: Tensor) -> Tensor:
+    """Low band of ``coarse`` (B, C, h, w), high band of ``fine`` (B, C, H, W) -> (B, C, H, W):
+    up(coarse) + fine - up(down(fine)) (module docstring)."""
+    size = tuple(fine.shape[-2:])
+    return resample_texels(coarse, size) + fine - resample_texels(resample_texels(fine, tuple(coarse.shape[-2:])), size)
+
+
+def reconstruct_across(run: Callable[[Tensor], Tensor], images: Tensor, trained: int | None,
+                       mode: str = DEFAULT_TRANSFER) -> Tensor:
+    """``run(images (B, P, 3, h, w)) -> (B, C, h, w)`` maps, applied to a capture ``images``
+    (B, P, 3, H, W) in ``mode`` for networks trained at ``trained`` texels a side. Returns
+    (B, C, H, W). On the networks' own grid (or in "native") it is ``run(images)``."""
+    check_transfer(mode)
+    full = tuple(images.shape[-2:])
+    grid = working_grid(full, trained)
+    if mode == "native" or grid == full:
+        return run(images)
+    coarse = run(resample_texels(images, grid))
+    if mode == "coarse":
+        return resample_texels(coarse, full)
+    return fuse_bands(coarse, run(images))
+
+
+def prediction_input(image: Tensor, trained: int | None, mode: str = DEFAULT_TRANSFER) -> Tensor:
+    """What the initializer and G_l predict from: ``image`` (B, 3, H, W) area-averaged to the
+    working grid in "coarse" and "fused", as it is in "native"."""
+    check_transfer(mode)
+    return image if mode == "native" else resample_texels(image, working_grid(tuple(image.shape[-2:]), trained))

@@ -1,0 +1,82 @@
+"""Resolution transfer: networks trained on an R x R grid reconstructing a finer capture."""
+
+import pytest
+import torch
+
+from mitsvbrdf.errors import MitsvbrdfError
+from mitsvbrdf.resolution import TRANSFER_MODES, check_transfer, prediction_input, reconstruct_across, working_grid
+from mitsvbrdf.svbrdf import resample_texels
+
+# float32 sums of a few texels: a few units in the last place of values near 1
+EPS = 1e-6
+
+
+def per_texel(images):
+    """A stand-in G_sc that is one linear map per texel (the mean over the patterns): it gives the
+    same maps whatever the grid, so every mode must reproduce what it gives on the capture."""
+    return images.mean(1)
+
+
+def test_the_working_grid_caps_each_axis_at_the_training_resolution():
+    assert working_grid((256, 256), 64) == (64, 64)
+    assert working_grid((256, 32), 64) == (64, 32)
+    assert working_grid((32, 32), 64) == (32, 32)
+
+
+def test_an_unknown_training_resolution_keeps_the_capture_grid():
+    assert working_grid((256, 128), None) == (256, 128)
+
+
+def test_bad_modes_are_refused():
+    with pytest.raises(MitsvbrdfError, match="transfer must be one of native, coarse, fused"):
+        check_transfer("tiled")
+    with pytest.raises(MitsvbrdfError):
+        reconstruct_across(per_texel, torch.rand(1, 5, 3, 8, 8), 4, "pyramid")
+
+
+@pytest.mark.parametrize("mode", TRANSFER_MODES)
+def test_a_capture_on_the_training_grid_is_reconstructed_as_it_is(mode):
+    images = torch.rand(2, 5, 3, 16, 16)
+    calls = []
+    out = reconstruct_across(lambda x: calls.append(x.shape) or per_texel(x), images, 16, mode)
+    assert calls == [images.shape]
+    assert torch.equal(out, per_texel(images))
+
+
+def test_native_mode_runs_the_networks_on_the_finer_capture_only():
+    images = torch.rand(1, 5, 3, 32, 32)
+    calls = []
+    reconstruct_across(lambda x: calls.append(tuple(x.shape[-2:])) or per_texel(x), images, 8, "native")
+    assert calls == [(32, 32)]
+
+
+def test_coarse_mode_runs_on_the_area_averaged_capture_and_upsamples():
+    images = torch.rand(1, 5, 3, 32, 32)
+    calls = []
+    out = reconstruct_across(lambda x: calls.append(tuple(x.shape[-2:])) or per_texel(x), images, 8, "coarse")
+    assert calls == [(8, 8)] and out.shape == (1, 3, 32, 32)
+    # a per-texel linear map commutes with the area average
+    want = resample_texels(resample_texels(per_texel(images), (8, 8)), (32, 32))
+    assert torch.allclose(out, want, atol=EPS)
+
+
+def test_fused_mode_gives_a_grid_independent_network_its_own_maps():
+    images = torch.rand(1, 5, 3, 32, 32)
+    out = reconstruct_across(per_texel, images, 8, "fused")
+    assert torch.allclose(out, per_texel(images), atol=EPS)
+
+
+def test_fused_mode_takes_the_low_band_from_the_training_grid():
+    # a network whose maps on the training grid are offset by 0.25 everywhere (a low-band
+    # difference): the fused maps carry the offset, and the capture's own detail beside it
+    images = torch.rand(1, 5, 3, 32, 32)
+    run = lambda x: per_texel(x) + (0.25 if x.shape[-1] == 8 else 0.0)  # noqa: E731
+    out = reconstruct_across(run, images, 8, "fused")
+    assert torch.allclose(out, per_texel(images) + 0.25, atol=EPS)
+
+
+def test_patterns_are_predicted_from_the_area_averaged_first_image():
+    i0 = torch.rand(2, 3, 32, 32)
+    assert prediction_input(i0, 8, "native") is i0
+    for mode in ("coarse", "fused"):
+        assert torch.allclose(prediction_input(i0, 8, mode), resample_texels(i0, (8, 8)))

@@ -6,6 +6,7 @@ import pytest
 import torch
 
 import mitsvbrdf as ms
+from mitsvbrdf.acquisition import SETTINGS_KEY, AcquisitionSettings
 from mitsvbrdf.cli import main
 from mitsvbrdf.nets import network_record
 from mitsvbrdf.training import STAGES, RenderSettings
@@ -31,6 +32,19 @@ def test_demo_writes_maps_patterns_relit_summary_report_and_exports(tmp_path, ne
         assert (out / f).exists(), f
     rec = json.loads((out / "demo.json").read_text())
     assert 0 <= rec["metrics"]["rmse_average"] <= 1
+    assert ms.SVBRDF.load(out / "maps.exr").resolution == (32, 32)
+
+
+def test_demo_records_the_training_grid_and_the_transfer_mode_it_reconstructed_with(tmp_path, networks):
+    recs = torch.load(networks, weights_only=True)
+    recs[SETTINGS_KEY] = AcquisitionSettings(resolution=16).record()  # trained on a coarser grid
+    coarse = tmp_path / "coarse.pt"
+    torch.save(recs, coarse)
+    out = tmp_path / "demo"
+    assert main(["demo", "--out", str(out), "--networks", str(coarse), "--resolution", "32", "--spp", "1",
+                 "--transfer", "coarse", "--quiet"]) == 0
+    rec = json.loads((out / "demo.json").read_text())
+    assert (rec["transfer"], rec["trained_resolution"]) == ("coarse", 16)
     assert ms.SVBRDF.load(out / "maps.exr").resolution == (32, 32)
 
 

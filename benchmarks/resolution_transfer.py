@@ -135,7 +135,8 @@ def main() -> None:
     text = (f"Command: `benchmarks/resolution_transfer.py --networks {net} --sizes {args.sizes} --n {args.n} "
             f"--spp {args.spp}`\n\nNetworks trained at {trained} px. Mean map RMSE (encoded maps) per set, size "
             "and transfer mode (`mitsvbrdf.resolution`); \"at R px\" is the same materials resized to the training "
-            "grid and reconstructed there. Seconds per material: simulated capture and reconstruction.\n\n" +
+            "grid and reconstructed there. Seconds per material: simulated capture and reconstruction; the first "
+            "row of each size (the demo material, native) includes Dr.Jit's kernel compilation for that size.\n\n" +
             "\n".join(lines) + "\n\nPaired per-material differences against native (mean +- standard error; "
             "negative: better than native):\n\n" + "\n".join(diff) +
             "\n\nNormal maps of the demo material at the largest size (encoded: ground truth, native, coarse, "

@@ -5,9 +5,10 @@ materials learned texels of pitch s / R. A U-Net sees a fixed number of texels a
 texel, so on a 256 x 256 capture of the same sample every structure spans 256 / R times more
 texels than in training. The low-frequency cues of the normals (a tilted region shades all five
 images alike, only its neighbourhood tells tilt from albedo) then fall outside what the networks
-see: the shipped networks (R = 64) recover a quarter of the sample materials' normal deviation at
-64 px and almost none at 256 px (``benchmarks/resolution_transfer.py``,
-docs/benchmarks/resolution_transfer.md).
+see. The shipped networks (R = 64) bring the sample materials' normal RMSE a third below the
+flat-normal level at 64 px (0.067 against 0.105), but only a tenth below it on a 256 px capture
+(0.104 against 0.114); reconstructed across the grids ("fused"), 0.076
+(``benchmarks/resolution_transfer.py``, docs/benchmarks/resolution_transfer.md).
 
 Modes (:data:`TRANSFER_MODES`) for a capture on an H x W grid finer than the networks' R x R
 (:func:`working_grid`; an axis at or below R is kept):
@@ -30,10 +31,13 @@ patterns live on the LCD's grid, the same for any texel grid), and the initializ
 upsampled to H x W. A capture averaged over coarse texels is not exactly a capture of the
 averaged maps (shading is not linear in them); the networks trained on the latter.
 
+Measured (the same document): "fused" is the best or level with the best on every set at 128 and
+256 px. "coarse" is as good on the sample materials but worse than "native" on the procedural
+ones, whose fine relief it drops; "native" is as good as "fused" on the procedural materials at
+128 px only.
+
 Rejected: reconstructing tile by tile at the native pitch (the tiles are the training size in
-texels but a sixteenth of the sample: the same loss of context, with seams); resampling the
-maps of the coarse run only (the "coarse" mode: measured worse than "fused" on the procedural
-materials, whose fine relief it drops).
+texels but a sixteenth of the sample: the same loss of context, with seams).
 """
 
 from __future__ import annotations

@@ -225,6 +225,13 @@ class _ControlVariate:
 
     def pointwise(self, si, wo, uv, hit) -> list:
         """Per pattern, g_p(wo) (Color3f) for the local light direction wo that meets the LCD at uv."""
+        if self.lobe_grid is not None:
+            # "ltc-cells": the per-cell terms replace the block diffuse term (its weight is 0 in
+            # this mode), so neither the block radiance nor the block decay is needed here
+            w = self.frame.to_view(wo)
+            d_s = ltc_density(self.m, w)
+            cells = self._cells(si.p, uv, hit)
+            return [dr.select(hit, self.spec[p] * d_s + cells[p], 0.0) for p in range(self.count)]
         K = self.K
         bi = dr.clip(mi.Int32(dr.floor(uv.y * K)), 0, K - 1)
         bj = dr.clip(mi.Int32(dr.floor(uv.x * K)), 0, K - 1)
@@ -233,13 +240,11 @@ class _ControlVariate:
         g_d = self.kdd * (dr.maximum(w.z, 0.0) / dr.pi * decay)
         d_s = ltc_density(self.m, w)
         base = (self.b * self.count) * (3 * K * K) + mi.UInt32(bi * K + bj)
-        cells = None if self.lobe_grid is None else self._cells(si.p, uv, hit)
         out = []
         for p in range(self.count):
             idx = base + p * (3 * K * K)
             lbar = mi.Color3f(*(dr.gather(mi.Float, self.block_rad, idx + c * (K * K), hit) for c in range(3)))
-            g = lbar * g_d + self.spec[p] * d_s
-            out.append(dr.select(hit, g if cells is None else g + cells[p], 0.0))
+            out.append(dr.select(hit, lbar * g_d + self.spec[p] * d_s, 0.0))
         return out
 
 

@@ -165,30 +165,49 @@ def _tent_weights(cells: int, k: int, dtype=torch.float64) -> Tensor:
     return w
 
 
+#: Elements of the (B, texels, 4, V) products that one chunk of :func:`_cells_term` holds: the
+#: chunk's temporaries then stay in cache (one pass over all texels at 64 px, B = 4, k = 16 moves
+#: ~80 MB per temporary, and took twice as long).
+CHUNK_ELEMENTS = 2 ** 20
+
+
 def _cells_term(rig: Rig, H: int, W: int, k: int, frame: Tensor, m_inv: Tensor, n: Tensor,
-                rad: Tensor) -> tuple[Tensor, Tensor, Tensor]:
+                rad: Tensor) -> tuple[Tensor, Tensor]:
     """For B N texels (frame and M^-1 (B N, 3, 3), normals n (B, N, 3), materials outermost): the
-    specular and diffuse lobe values q_v and q^d_v (B, N, V) at the grid vertices, and T_{p,v}
-    (B, P, 3, V) of the cell radiance ``rad`` (B, P, 3, h, w) without decay."""
+    lobe values (B, N, 2, V) at the grid vertices (q_v, then q^d_v), and T_{p,v} (B, P, 3, V) of
+    the cell radiance ``rad`` (B, P, 3, h, w) without decay."""
     d, g = (t.to(frame.device, frame.dtype) for t in _grid_geometry(rig, H, W, k))
-    N = g.shape[0]
+    N, V = g.shape
     B = frame.shape[0] // N
     # One batched product gives M^-1 w (rows 0-2: M^-1 times the view frame) and n . w (row 3).
     rows = torch.cat([m_inv @ frame, n.reshape(-1, 1, 3)], 1).reshape(B, N, 4, 3)
-    wl = rows @ d  # (B, N, 4, V)
-    len2 = wl[:, :, :3].square().sum(2).clamp_min(1e-24)
-    det = torch.linalg.det(m_inv).abs().reshape(B, N, 1)
-    q = wl[:, :, 2].clamp_min(0.0) * (det / torch.pi) * g / len2.square()
-    q_d = wl[:, :, 3].clamp_min(0.0) * (g / torch.pi)
-    h, w = rad.shape[-2:]
-    lcd = rig.lcd_geometry(rad.device, torch.float64)
+    det = torch.linalg.det(m_inv).abs().reshape(B, N, 1) / torch.pi
+    lobe = torch.empty(B, N, 2, V, dtype=frame.dtype, device=frame.device)
+    step = max(1, CHUNK_ELEMENTS // (4 * B * V))
+    for i in range(0, N, step):
+        j = min(N, i + step)
+        wl = rows[:, i:j] @ d[i:j]  # (B, n, 4, V)
+        gc = g[i:j]
+        len2 = wl[:, :, :3].square().sum(2).clamp_min(1e-24)
+        lobe[:, i:j, 0] = wl[:, :, 2].clamp_min(0.0) * (det[:, i:j] * gc) / len2.square()
+        lobe[:, i:j, 1] = wl[:, :, 3].clamp_min(0.0) * (gc / torch.pi)
+    tv, tu, scale = (t.to(rad.device, rad.dtype) for t in _cell_weights(rig, k))
+    t = tv @ (rad * scale) @ tu.T  # (B, P, 3, k + 1, k + 1)
+    return lobe, t.flatten(-2)
+
+
+@lru_cache(maxsize=8)
+def _cell_weights(rig: Rig, k: int) -> tuple[Tensor, Tensor, Tensor]:
+    """The fixed linear map of a pattern onto the grid (geometry only, float64): the tent weights
+    t_v(c) along rows (k + 1, h) and columns (k + 1, w), and (h, w) each cell's area times the
+    decay's position factor at its centre."""
+    h, w = rig.lcd_cells
+    lcd = rig.lcd_geometry(dtype=torch.float64)
     cell_uv = torch.stack(torch.meshgrid((torch.arange(w, dtype=torch.float64) + 0.5) / w,
                                          (torch.arange(h, dtype=torch.float64) + 0.5) / h, indexing="xy"), -1)
     position = rig.display.decay(cell_uv, torch.ones(h, w, dtype=torch.float64))  # the decay's position factor
-    scale = lcd.area / (h * w) * (1.0 if position is None else position)
-    tv, tu = (_tent_weights(m, k).to(rad.device, rad.dtype) for m in (h, w))
-    t = tv @ (rad * scale.to(rad.dtype)) @ tu.T  # (B, P, 3, k + 1, k + 1)
-    return q, q_d, t.flatten(-2)
+    scale = lcd.area / (h * w) * (torch.ones(h, w, dtype=torch.float64) if position is None else position)
+    return _tent_weights(h, k), _tent_weights(w, k), scale
 
 
 def _peak_block(rig: Rig, x: Tensor, d: Tensor, k: int) -> tuple[Tensor, Tensor]:
@@ -274,12 +293,12 @@ def control_variate(svbrdf, patterns: Tensor, rig: Rig, *, mode: str = "ltc-cell
             cells = (use & (r.reshape(-1) >= ltc_cells_min_roughness))[:, None]
             s_cells, s = torch.where(cells, s, 0.0).reshape(B, N, 3), torch.where(cells, 0.0, s)
             kd_cells = torch.where(ok[..., None], kd * (1 - ks), torch.zeros_like(kd))
-            q, q_d, t = _cells_term(rig, H, W, ltc_grid, frame, m_inv, n, rad)
+            lobe_grid, t = _cells_term(rig, H, W, ltc_grid, frame, m_inv, n, rad)  # (B, N, 2, V)
             t = t.reshape(B, P * 3, -1).transpose(1, 2)  # (B, V, 3 P)
-            per_cell = (s_cells[:, :, None] * torch.bmm(q, t).reshape(B, N, P, 3)
-                        + kd_cells[:, :, None] * torch.bmm(q_d, t).reshape(B, N, P, 3))
+            both = torch.bmm(lobe_grid.reshape(B, 2 * N, -1), t).reshape(B, N, 2, P, 3)
+            per_cell = s_cells[:, :, None] * both[:, :, 0] + kd_cells[:, :, None] * both[:, :, 1]
             known = known + per_cell.permute(0, 2, 1, 3)
-            extra, lobe_grid = [s_cells, kd_cells], torch.stack([q, q_d], 2)  # (B, N, 2, V)
+            extra = [s_cells, kd_cells]
         lb = lbar.permute(0, 3, 1, 2).reshape(B * blocks * blocks, P, 3)  # (B K^2, P, 3)
         mat = torch.arange(B, device=dev).repeat_interleave(N)
         cp = lb[mat * blocks * blocks + block]  # (B N, P, 3)

@@ -210,6 +210,21 @@ def _cell_weights(rig: Rig, k: int) -> tuple[Tensor, Tensor, Tensor]:
     return _tent_weights(h, k), _tent_weights(w, k), scale
 
 
+def _warped_lcd_form_factor(frame: Tensor, m_inv: Tensor, corners: Tensor, x: Tensor, where: Tensor) -> Tensor:
+    """E(M^-1 LCD) (B N,): the clipped form factor of the LCD warped into each texel's LTC frame
+    (frame, M^-1 (B N, 3, 3); LCD ``corners`` (4, 3); texel positions ``x`` (N, 3)), computed
+    only where ``where`` (B N,) is true and 0 elsewhere (one clipped polygon per texel is most of
+    the one-radiance term's cost, and the per-cell term makes it unused at most texels)."""
+    idx = where.nonzero().squeeze(1)
+    e = torch.zeros(where.shape[0], dtype=frame.dtype, device=frame.device)
+    if idx.numel() == 0:
+        return e
+    rel = corners[:, None] - x[idx % x.shape[0]][None]  # (4, n, 3)
+    local = (frame[idx, None] * rel.transpose(0, 1)[:, :, None]).sum(-1)  # (n, 4, 3) in the view frame
+    warped = (m_inv[idx, None] * local[:, :, None]).sum(-1)
+    return e.index_put((idx,), clipped_polygon_vector_form_factor(warped)[:, 2].abs())
+
+
 def _peak_block(rig: Rig, x: Tensor, d: Tensor, k: int) -> tuple[Tensor, Tensor]:
     """Block index (N,) where rays x + t d (world, N x 3) meet the LCD (its centre when they point
     away from it), and the decay factor of that block's centre towards x (N,)."""
@@ -278,10 +293,6 @@ def control_variate(svbrdf, patterns: Tensor, rig: Rig, *, mode: str = "ltc-cell
         m_inv, a_one, a_s = default_table().lookup(r.reshape(-1), cos_v.reshape(-1))
         a, bb, c, d = m_inv[:, 0, 0], m_inv[:, 0, 2], m_inv[:, 1, 1], m_inv[:, 2, 0]
         m_entries = torch.stack([a, bb, c, d], -1).reshape(B, N, 4)
-        rel = (corners[:, None] - x[None]).repeat(1, B, 1)  # (4, B N, 3)
-        local = (frame[:, None] * rel.transpose(0, 1)[:, :, None]).sum(-1)  # (B N, 4, 3) in the view frame
-        warped = (m_inv[:, None] * local[:, :, None]).sum(-1)
-        e = clipped_polygon_vector_form_factor(warped)[:, 2].abs()
         # The lobe's peak direction M z: for M^-1 = [[a, 0, b], [0, c, 0], [d, 0, 1]], along (-b, 0, a)/(a - b d).
         peak = torch.nn.functional.normalize(torch.stack([-bb, torch.zeros_like(a), a], -1)
                                              * torch.sign(a - bb * d)[:, None], dim=-1)
@@ -299,6 +310,8 @@ def control_variate(svbrdf, patterns: Tensor, rig: Rig, *, mode: str = "ltc-cell
             per_cell = s_cells[:, :, None] * both[:, :, 0] + kd_cells[:, :, None] * both[:, :, 1]
             known = known + per_cell.permute(0, 2, 1, 3)
             extra = [s_cells, kd_cells]
+            use = use & ~cells[:, 0]  # where the one-radiance term is left
+        e = _warped_lcd_form_factor(frame, m_inv, corners, x, use)
         lb = lbar.permute(0, 3, 1, 2).reshape(B * blocks * blocks, P, 3)  # (B K^2, P, 3)
         mat = torch.arange(B, device=dev).repeat_interleave(N)
         cp = lb[mat * blocks * blocks + block]  # (B N, P, 3)

@@ -182,15 +182,16 @@ def _cells_term(rig: Rig, H: int, W: int, k: int, frame: Tensor, m_inv: Tensor, 
     # One batched product gives M^-1 w (rows 0-2: M^-1 times the view frame) and n . w (row 3).
     rows = torch.cat([m_inv @ frame, n.reshape(-1, 1, 3)], 1).reshape(B, N, 4, 3)
     det = torch.linalg.det(m_inv).abs().reshape(B, N, 1) / torch.pi
-    lobe = torch.empty(B, N, 2, V, dtype=frame.dtype, device=frame.device)
     step = max(1, CHUNK_ELEMENTS // (4 * B * V))
+    chunks = []  # concatenated, not assigned into one buffer: slice assignments' backward copies it whole
     for i in range(0, N, step):
         j = min(N, i + step)
         wl = rows[:, i:j] @ d[i:j]  # (B, n, 4, V)
         gc = g[i:j]
         len2 = wl[:, :, :3].square().sum(2).clamp_min(1e-24)
-        lobe[:, i:j, 0] = wl[:, :, 2].clamp_min(0.0) * (det[:, i:j] * gc) / len2.square()
-        lobe[:, i:j, 1] = wl[:, :, 3].clamp_min(0.0) * (gc / torch.pi)
+        chunks.append(torch.stack([wl[:, :, 2].clamp_min(0.0) * (det[:, i:j] * gc) / len2.square(),
+                                   wl[:, :, 3].clamp_min(0.0) * (gc / torch.pi)], 2))
+    lobe = torch.cat(chunks, 1)
     tv, tu, scale = (t.to(rad.device, rad.dtype) for t in _cell_weights(rig, k))
     t = tv @ (rad * scale) @ tu.T  # (B, P, 3, k + 1, k + 1)
     return lobe, t.flatten(-2)

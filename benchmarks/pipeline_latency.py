@@ -55,13 +55,16 @@ def main() -> None:
     rows = [{"step": "pattern prediction (initializer + L_pdf + G_l)", "seconds": round(predict, 3)},
             {"step": "reconstruction (separation + G_sc)", "seconds": round(reconstruct, 3)},
             {"step": "total", "seconds": round(predict + reconstruct, 3)}]
+    grid = pipe.settings.resolution
     text = (f"One {args.size}x{args.size} material, networks `{args.networks.name}` "
-            f"({sum(p.numel() for p in pipe.parameters()):,} parameters), CPU with {torch.get_num_threads()} "
+            f"({sum(p.numel() for p in pipe.parameters()):,} parameters, trained at {grid or 'an unrecorded'} px; "
+            f"resolution transfer {pipe.transfer!r}), CPU with {torch.get_num_threads()} "
             "threads; median of 5 runs after a warm-up.\n\n| step | seconds |\n|---|---:|\n" +
             "\n".join(f"| {r['step']} | {r['seconds']} |" for r in rows) + "\n")
     stride_rows = lpdf_stride_tradeoff(pipe, i0, rig)
     text += ("\n## L_pdf texel stride: cost and error\n\nL_pdf of the initializer's estimate of the same "
-             "material, computed on every s-th texel; error against s = 1 (relative RMSE of the [0, 1] L_pdf), "
+             f"material on its own {args.size} px grid (the \"native\" transfer; the default predicts on the "
+             "training grid), computed on every s-th texel; error against s = 1 (relative RMSE of the [0, 1] L_pdf), "
              "and the RMS change of the 4 predicted patterns (drive values). The pipeline's default is "
              f"{pipe.settings.lpdf_stride}.\n\n| stride | L_pdf seconds | L_pdf rel. RMSE | pattern RMS change |\n"
              "|---:|---:|---:|---:|\n" +

@@ -207,16 +207,23 @@ def predict(initializer: torch.nn.Module, lighting: torch.nn.Module, i0: Tensor,
 
 
 def reconstruct_maps(reconstructor: torch.nn.Module, images: Tensor, patterns: Tensor, rig: Rig, *,
-                     use_spec: bool) -> Tensor:
+                     use_spec: bool, resolution: int | None = None, transfer: str = DEFAULT_TRANSFER) -> Tensor:
     """G_sc on captures (B, P, 3, H, W) under ``patterns`` (B, P, 3, h, w) or (P, 3, h, w):
     ``reconstructor(images, I^spec)`` with I^spec separated from the images (Eq. 5), or
     ``reconstructor(images, None)`` without ``use_spec``; a G_sc built with ``diffuse_ratio`` also
-    gets the patterns' irradiance L^d, which I^spec shares. Returns its (B, 10, H, W) encoded maps."""
+    gets the patterns' irradiance L^d, which I^spec shares. A capture finer than G_sc's training
+    grid ``resolution`` is reconstructed across both grids in ``transfer`` mode
+    (:func:`mitsvbrdf.resolution.reconstruct_across`; None: on its own grid). Returns its
+    (B, 10, H, W) encoded maps."""
     ratio = getattr(reconstructor, "diffuse_ratio", False)
-    ld = diffuse_irradiance(patterns.to(images.device, images.dtype), rig, images.shape[-2:]) \
-        if ratio or use_spec else None
-    spec = separate_specular(images, patterns, rig, irradiance=ld) if use_spec else None
-    return reconstructor(images, spec, irradiance=ld) if ratio else reconstructor(images, spec)
+    patterns = patterns.to(images.device, images.dtype)
+
+    def run(imgs: Tensor) -> Tensor:  # G_sc on one texel grid
+        ld = diffuse_irradiance(patterns, rig, imgs.shape[-2:]) if ratio or use_spec else None
+        spec = separate_specular(imgs, patterns, rig, irradiance=ld) if use_spec else None
+        return reconstructor(imgs, spec, irradiance=ld) if ratio else reconstructor(imgs, spec)
+
+    return reconstruct_across(run, images, resolution, transfer)
 
 
 def _check_use_spec(reconstructor: torch.nn.Module, use_spec: bool, where: str = "G_sc") -> None:
@@ -313,9 +320,9 @@ class AdaptiveAcquisition(torch.nn.Module):
     @torch.no_grad()
     def reconstruct(self, images: Tensor, patterns: Tensor) -> SVBRDF:
         """Images (B, 5, 3, H, W) under patterns (B, 5, 3, h, w) -> the reconstructed SVBRDF."""
-        return maps_to_svbrdf(reconstruct_across(
-            lambda imgs: reconstruct_maps(self.reconstructor, imgs, patterns, self.rig, use_spec=self.settings.use_spec),
-            images, self.settings.resolution, self.transfer))
+        return maps_to_svbrdf(reconstruct_maps(self.reconstructor, images, patterns, self.rig,
+                                               use_spec=self.settings.use_spec, resolution=self.settings.resolution,
+                                               transfer=self.transfer))
 
     def all_patterns(self, adaptive: Tensor) -> Tensor:
         """L_0 prepended to adaptive patterns (B, 4, 3, h, w) -> (B, 5, 3, h, w)."""
@@ -368,9 +375,8 @@ class FixedAcquisition(torch.nn.Module):
     @torch.no_grad()
     def acquire(self, capture: CaptureFn) -> Acquisition:
         images = capture(self.patterns[None])
-        maps = reconstruct_across(
-            lambda imgs: reconstruct_maps(self.reconstructor, imgs, self.patterns, self.rig, use_spec=self.use_spec),
-            images, self.resolution, self.transfer)
+        maps = reconstruct_maps(self.reconstructor, images, self.patterns, self.rig, use_spec=self.use_spec,
+                                resolution=self.resolution, transfer=self.transfer)
         return Acquisition(self.patterns, images[0], maps_to_svbrdf(maps))
 
     def simulate(self, svbrdf: SVBRDF, method: str = "mitsuba", spp: int = 64, seed: int = 0) -> Acquisition:
@@ -432,7 +438,8 @@ def load_adaptive(path: str | Path, rig: Rig, *, lpdf_from: str | None = None,
         raise NetworkFileError(f"{path}: {e}") from e
 
 
-def load_baseline(path: str | Path, rig: Rig, *, transfer: str = DEFAULT_TRANSFER) -> FixedAcquisition | FlashAcquisition:
+def load_baseline(path: str | Path, rig: Rig, *,
+                  transfer: str = DEFAULT_TRANSFER) -> FixedAcquisition | FlashAcquisition:
     """A baseline from the ``networks.pt`` export of a ``fixed`` training stage: its pattern group
     (fixed or learned) or its flash, and its G_sc, reconstructing finer captures in ``transfer``
     mode. Raises NetworkFileError for other files."""

@@ -225,20 +225,18 @@ class _ControlVariate:
 
     def pointwise(self, si, wo, uv, hit) -> list:
         """Per pattern, g_p(wo) (Color3f) for the local light direction wo that meets the LCD at uv."""
+        w = self.frame.to_view(wo)
+        d_s = ltc_density(self.m, w)
         if self.lobe_grid is not None:
             # "ltc-cells": the per-cell terms replace the block diffuse term (its weight is 0 in
             # this mode), so neither the block radiance nor the block decay is needed here
-            w = self.frame.to_view(wo)
-            d_s = ltc_density(self.m, w)
             cells = self._cells(si.p, uv, hit)
             return [dr.select(hit, self.spec[p] * d_s + cells[p], 0.0) for p in range(self.count)]
         K = self.K
         bi = dr.clip(mi.Int32(dr.floor(uv.y * K)), 0, K - 1)
         bj = dr.clip(mi.Int32(dr.floor(uv.x * K)), 0, K - 1)
         decay = self._decay(si.p, (mi.Float(bj) + 0.5) / K, (mi.Float(bi) + 0.5) / K)
-        w = self.frame.to_view(wo)
         g_d = self.kdd * (dr.maximum(w.z, 0.0) / dr.pi * decay)
-        d_s = ltc_density(self.m, w)
         base = (self.b * self.count) * (3 * K * K) + mi.UInt32(bi * K + bj)
         out = []
         for p in range(self.count):

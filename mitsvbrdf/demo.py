@@ -75,7 +75,8 @@ def run_demo(out: str | Path, *, material: str | Path = DEFAULT_MATERIAL, networ
     export_mitsuba_scene(acq.svbrdf, out / "export" / "mitsuba", rig)
     export_gltf(acq.svbrdf, out / "export" / "gltf", sample_size=rig.sample_size)
     record = {"material": str(material), "networks": str(networks), "resolution": resolution, "spp": spp,
-              "seed": seed, "transfer": transfer, "trained_resolution": acquisition.settings.resolution, "seconds": {"total": None, "capture_and_reconstruction": round(t2 - t1, 2)},
+              "seed": seed, "transfer": transfer, "trained_resolution": acquisition.settings.resolution,
+              "seconds": {"total": None, "capture_and_reconstruction": round(t2 - t1, 2)},
               "metrics": {k: round(v, 5) for k, v in metrics.items()}}
     record["seconds"]["total"] = round(time.perf_counter() - t0, 2)
     (out / "demo.json").write_text(json.dumps(record, indent=2))
@@ -89,8 +90,8 @@ def _report(out: Path, record: dict) -> None:
     write_html_page(
         out / "report.html", "mitsvbrdf demo",
         paragraphs=[f"{record['material']} at {record['resolution']} px, {record['spp']} spp, "
-                    f"{record['seconds']['total']} s. Networks trained at {record['trained_resolution'] or 'an unrecorded'} "
-                    f"px, resolution transfer {record['transfer']!r}."],
+                    f"{record['seconds']['total']} s. Networks trained at "
+                    f"{record['trained_resolution'] or 'an unrecorded'} px, resolution transfer {record['transfer']!r}."],
         table=(["metric", "value"], list(record["metrics"].items())),
         images=[("Summary", "summary.png"), ("Patterns L0..L4", "patterns.png"), ("Captured images", "images.png"),
                 ("Re-rendered: ground truth (top) vs reconstruction (bottom)", "relit.png"),

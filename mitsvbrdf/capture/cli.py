@@ -16,9 +16,9 @@ import numpy as np
 
 from .. import imageio
 from ..acquisition import DEFAULT_NETWORKS, load_adaptive
-from ..resolution import DEFAULT_TRANSFER, TRANSFER_HELP, TRANSFER_MODES
 from ..checks import check_float, check_int, check_out_dir, check_out_file, check_seed
 from ..errors import MitsvbrdfError
+from ..resolution import DEFAULT_TRANSFER, TRANSFER_HELP, TRANSFER_MODES
 from ..rig import DEFAULT_SCENE, Rig
 from ..svbrdf import SVBRDF
 from . import calibrate as cal

@@ -42,7 +42,8 @@ disagree. Two terms (either may be switched off by the scene file's integrator o
   ``R_c(y) (f cos d(y) - S q(y) / G(y))`` (f cos the BRDF times the cosine, d(y) the decay's
   cosine factor; up to the position factor's change within a cell): the pattern factors out, and
   what is left is the LTC fit's and the interpolation's error, whatever the pattern. Below
-  ``ltc_cells_min_roughness`` the lobe is too narrow for the grid and the one-radiance term stays. The diffuse lobe goes the same way
+  ``ltc_cells_min_roughness`` the lobe is too narrow for the grid and the one-radiance term
+  stays. The diffuse lobe goes the same way
   in this mode (``q^d_v = (n . w_v)^+ / pi G_v d_v``, weight kd (1 - ks)) in place of the block
   term: block means miss a sparse pattern's detail under it as well, and any q keeps the
   integral exact, also where the LCD crosses the horizon of n.
@@ -54,8 +55,8 @@ whole render; torch does the contraction as one batched matrix product. A specul
 per block (K^2 clipped LTC polygons per texel) would follow sparse patterns under wide lobes, but
 costs K^2 times the one polygon per texel used here; the per-cell term ("ltc-cells") gets the
 pattern's detail for the price of (k + 1)^2 lobe evaluations per texel instead. Choosing c_p as
-the lobe-weighted mean of the block radiances instead of the radiance at the peak left the procedural study's errors about
-where they were, so the simpler choice stays.
+the lobe-weighted mean of the block radiances instead of the radiance at the peak left the
+procedural study's errors about where they were, so the simpler choice stays.
 
 Shapes: B materials, P patterns, texels in row-major (H, W) order. Everything is differentiable
 w.r.t. patterns and maps (torch autograd), as the residual is on the plugin's side.

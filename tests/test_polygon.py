@@ -5,7 +5,7 @@ import math
 import pytest
 import torch
 
-from mitsvbrdf.render.polygon import clipped_polygon_form_factor, lcd_cell_form_factors
+from mitsvbrdf.render.polygon import clipped_polygon_form_factor, grid_cell_form_factors, lcd_cell_form_factors
 from mitsvbrdf.render.quadrature import QuadratureSettings, cell_kernels
 from mitsvbrdf.render.reference import diffuse_integrand
 
@@ -32,6 +32,18 @@ def test_form_factor_matches_dense_integration_in_both_orientations(poly):
     want = _dense_form_factor(p).item()
     assert abs(clipped_polygon_form_factor(p).item() - want) < 1e-6
     assert abs(clipped_polygon_form_factor(p.flip(0)).item() - want) < 1e-6
+
+
+def test_grid_cells_sharing_their_edges_have_each_cells_own_form_factor():
+    """A 3 x 4 grid of quads above the horizon (one skewed corner, so the quads differ): each
+    quad's value is its own polygon's form factor, in float64 rounding."""
+    v, u = torch.meshgrid(torch.linspace(-0.4, 0.3, 4, dtype=torch.float64),
+                          torch.linspace(-0.5, 0.6, 5, dtype=torch.float64), indexing="ij")
+    corners = torch.stack([u, v, 0.5 + 0.2 * u - 0.1 * v], -1)
+    corners[1, 2] += torch.tensor([0.05, -0.03, 0.04], dtype=torch.float64)
+    quads = torch.stack([corners[:-1, :-1], corners[:-1, 1:], corners[1:, 1:], corners[1:, :-1]], -2)
+    torch.testing.assert_close(grid_cell_form_factors(corners), clipped_polygon_form_factor(quads),
+                               rtol=1e-12, atol=1e-15)
 
 
 def test_polygon_below_the_horizon_contributes_nothing():

@@ -26,10 +26,17 @@ from torch import Tensor
 from ..brdf import tangent_frame
 
 
+def _unit(p: Tensor) -> Tensor:
+    return p / torch.linalg.vector_norm(p, dim=-1, keepdim=True).clamp_min(1e-20)
+
+
 def _edge_vector(p: Tensor, q: Tensor) -> Tensor:
     """theta (p x q) / |p x q| for edges p -> q (..., 3); finite and differentiable when p ~ q."""
-    pn = p / torch.linalg.vector_norm(p, dim=-1, keepdim=True).clamp_min(1e-20)
-    qn = q / torch.linalg.vector_norm(q, dim=-1, keepdim=True).clamp_min(1e-20)
+    return _unit_edge_vector(_unit(p), _unit(q))
+
+
+def _unit_edge_vector(pn: Tensor, qn: Tensor) -> Tensor:
+    """:func:`_edge_vector` of unit vectors."""
     cross = torch.linalg.cross(pn, qn, dim=-1)
     s = torch.linalg.vector_norm(cross, dim=-1, keepdim=True)
     c = (pn * qn).sum(-1, keepdim=True)
@@ -38,12 +45,35 @@ def _edge_vector(p: Tensor, q: Tensor) -> Tensor:
     return torch.where(s > 1e-12, theta / s.clamp_min(1e-12), torch.ones_like(s)) * cross
 
 
+def _unit_edge_z(pn: Tensor, qn: Tensor) -> Tensor:
+    """The z component of :func:`_unit_edge_vector`, without the full cross product:
+    |p x q| = sqrt(1 - (p . q)^2) for unit vectors. Where that loses precision (p ~ q), theta
+    comes from the same |p x q|, so theta / |p x q| stays ~1 and the term stays accurate."""
+    c = (pn * qn).sum(-1)
+    s = (1.0 - c * c).clamp_min(0.0).sqrt()
+    cross_z = pn[..., 0] * qn[..., 1] - pn[..., 1] * qn[..., 0]
+    theta = torch.atan2(s, c)
+    return torch.where(s > 1e-12, theta / s.clamp_min(1e-12), torch.ones_like(s)) * cross_z
+
+
 def polygon_vector_form_factor(vertices: Tensor) -> Tensor:
     """Vector form factor (1 / 2 pi) sum_k theta_k (p_k x p_{k+1}) / |p_k x p_{k+1}| of polygons
     (..., K, 3), unclipped and frame-free: for a polygon wholly above the horizon of a unit
     normal n, ``|n . result|`` is its form factor; (..., 3)."""
     b = torch.roll(vertices, shifts=-1, dims=-2)
     return _edge_vector(vertices, b).sum(-2) / (2.0 * math.pi)
+
+
+def grid_cell_form_factors(corners: Tensor) -> Tensor:
+    """Form factors of the m x n quads of a grid of corners (..., m + 1, n + 1, 3), unclipped (a
+    quad wholly above the horizon z = 0 gets its form factor; only there is it one), (..., m, n).
+    Neighbouring quads share their edges, so the grid costs 2 m n + m + n edge terms instead of
+    4 m n: quad (i, j) runs (i, j) -> (i, j + 1) -> (i + 1, j + 1) -> (i + 1, j)."""
+    c = _unit(corners)  # each corner normalised once, not once per edge
+    across = _unit_edge_z(c[..., :, :-1, :], c[..., :, 1:, :])  # (..., m + 1, n)
+    down = _unit_edge_z(c[..., :-1, :, :], c[..., 1:, :, :])  # (..., m, n + 1)
+    total = across[..., :-1, :] + down[..., :, 1:] - across[..., 1:, :] - down[..., :, :-1]
+    return total.abs() / (2.0 * math.pi)
 
 
 def clipped_polygon_vector_form_factor(vertices: Tensor) -> Tensor:

@@ -40,6 +40,13 @@ Parameters:
                      divide the LCD's cell counts); (ltc_grid + 1)^2 floats per texel.
     ltc_cells_min_roughness (float, default 0.2) "ltc-cells": below this roughness the lobe is too
                      narrow for the grid, and the one-radiance term of "ltc" stays.
+    ltc_window       (integer, default 8; 0: off) "ltc-cells": lobes narrower than that (down to
+                     ltc_window_min_roughness) are known exactly under every cell of a
+                     ltc_window x ltc_window window of cells around their peak; the one-radiance
+                     term covers the rest of the LCD where it is on; 5 + ltc_window^2 more floats
+                     per texel.
+    ltc_window_min_roughness (float, default 0.02) below this roughness the window term is off too
+                     (the near-mirror caveat of ltc_min_roughness).
 
 The emission decay, gamma and colour matrix of the scene's display model all apply: the control
 variate uses each block's mean radiance after the display model and the decay at the block's
@@ -164,15 +171,22 @@ class _ControlVariate:
     Args: the ``lcd`` emitter; ``block_rad`` the flat (B, P, 3, K^2) block radiance; ``coeffs`` the
     flat (B, H W, 7 + 3 P [+ 6]) per-texel coefficients; K; the lanes' material ``b`` and ``texel``
     index; the count P; the shading point's normal ``n`` and view direction (local); for
-    "ltc-cells", ``lobe_grid`` the flat (B, H W, 2, (k + 1)^2) lobe values q_v, q^d_v and ``grid`` k."""
+    "ltc-cells", ``lobe_grid`` the flat (B, H W, 2, (k + 1)^2) lobe values q_v, q^d_v, ``grid`` k and
+    ``window`` w (0: no window term)."""
 
     def __init__(self, lcd, block_rad, coeffs, K: int, b, texel, hw: int, count: int, n, wi,
-                 lobe_grid=None, grid: int = 0):
+                 lobe_grid=None, grid: int = 0, window: int = 0):
         self.lcd, self.K, self.count = lcd, K, count
         self.block_rad, self.b = block_rad, b
-        width = 7 + 3 * count + (0 if lobe_grid is None else 6)
+        self.window = window if lobe_grid is not None else 0
+        eager = 7 + 3 * count + (0 if lobe_grid is None else 6) + (5 if self.window else 0)
+        width = eager + self.window * self.window
         base = (b * hw + texel) * width
-        c = [dr.gather(mi.Float, coeffs, base + j) for j in range(width)]
+        c = [dr.gather(mi.Float, coeffs, base + j) for j in range(eager)]
+        if self.window:  # omega_c is gathered for the one cell a direction meets
+            self.coeffs, self.omega_base = coeffs, base + eager
+            self.s_win = mi.Color3f(*c[13 + 3 * count:16 + 3 * count])
+            self.win_row, self.win_col = mi.Int32(c[16 + 3 * count]), mi.Int32(c[17 + 3 * count])
         self.m = tuple(c[:4])
         self.kdd = mi.Color3f(c[4], c[5], c[6])
         self.spec = [mi.Color3f(c[7 + 3 * p], c[8 + 3 * p], c[9 + 3 * p]) for p in range(count)]
@@ -197,9 +211,9 @@ class _ControlVariate:
         y = self._point(u, v)
         return self.lcd._factor(mi.Point2f(u, v), dr.dot(dr.normalize(p_world - y), self.lcd_n))
 
-    def _cells(self, p_world, uv, hit) -> list:
+    def _cells(self, p_world, uv, hit, window_lobe) -> list:
         """Per pattern, the per-cell terms (S q(y) + kd (1 - ks) q^d(y)) R_c(y) / G(y) at the LCD
-        point uv."""
+        point uv, plus ``window_lobe`` R_c (the window term, per sr; None without one)."""
         k, side = self.grid, self.grid + 1
         gu, gv = uv.x * k, uv.y * k
         col = dr.clip(mi.Int32(dr.floor(gu)), 0, k - 1)
@@ -217,11 +231,27 @@ class _ControlVariate:
         dist2 = dr.squared_norm(rel)
         cos_emit = dr.dot(rel, self.lcd_n) * dr.rsqrt(dr.maximum(dist2, 1e-30))
         per_sr = dr.select(cos_emit > 0, dist2 / dr.maximum(cos_emit, 1e-12), 0.0) * lobe
-        lcd = self.lcd
-        centre = mi.Point2f((dr.clip(dr.floor(uv.x * lcd.w), 0, lcd.w - 1) + 0.5) / lcd.w,
-                            (dr.clip(dr.floor(uv.y * lcd.h), 0, lcd.h - 1) + 0.5) / lcd.h)
+        if window_lobe is not None:
+            per_sr = per_sr + window_lobe
+        row_c, col_c = self._cell(uv)
+        centre = mi.Point2f((col_c + 0.5) / self.lcd.w, (row_c + 0.5) / self.lcd.h)
         first = self.b * self.count
-        return [lcd.radiance(centre, mi.Float(1.0), first + p, hit) * per_sr for p in range(self.count)]
+        return [self.lcd.radiance(centre, mi.Float(1.0), first + p, hit) * per_sr for p in range(self.count)]
+
+    def _cell(self, uv):
+        """The row and column (Float) of the LCD cell that holds uv."""
+        return (dr.clip(dr.floor(uv.y * self.lcd.h), 0, self.lcd.h - 1),
+                dr.clip(dr.floor(uv.x * self.lcd.w), 0, self.lcd.w - 1))
+
+    def _window_cell(self, uv, hit):
+        """Whether uv lies in the texel's window (never for texels without one: their window lies
+        off the LCD), and omega_c of its cell there (0 elsewhere)."""
+        w = self.window
+        row_c, col_c = self._cell(uv)
+        i, j = mi.Int32(row_c) - self.win_row, mi.Int32(col_c) - self.win_col
+        inside = hit & (i >= 0) & (i < w) & (j >= 0) & (j < w)
+        at = self.omega_base + mi.UInt32(dr.select(inside, i * w + j, 0))
+        return inside, dr.gather(mi.Float, self.coeffs, at, inside)
 
     def pointwise(self, si, wo, uv, hit) -> list:
         """Per pattern, g_p(wo) (Color3f) for the local light direction wo that meets the LCD at uv."""
@@ -230,8 +260,14 @@ class _ControlVariate:
         if self.lobe_grid is not None:
             # "ltc-cells": the per-cell terms replace the block diffuse term (its weight is 0 in
             # this mode), so neither the block radiance nor the block decay is needed here
-            cells = self._cells(si.p, uv, hit)
-            return [dr.select(hit, self.spec[p] * d_s + cells[p], 0.0) for p in range(self.count)]
+            if not self.window:
+                cells = self._cells(si.p, uv, hit, None)
+                return [dr.select(hit, self.spec[p] * d_s + cells[p], 0.0) for p in range(self.count)]
+            # inside the window its cells' own radiance, outside it the one-radiance term
+            inside, omega = self._window_cell(uv, hit)
+            cells = self._cells(si.p, uv, hit, self.s_win * (omega * d_s))
+            one = dr.select(inside, 0.0, d_s)
+            return [dr.select(hit, self.spec[p] * one + cells[p], 0.0) for p in range(self.count)]
         K = self.K
         bi = dr.clip(mi.Int32(dr.floor(uv.y * K)), 0, K - 1)
         bj = dr.clip(mi.Int32(dr.floor(uv.x * K)), 0, K - 1)
@@ -341,6 +377,8 @@ class ImportanceIntegrator(mi.SamplingIntegrator):
         self.ltc_min_cos_view = float(props.get("ltc_min_cos_view", 0.1))
         self.ltc_grid = int(props.get("ltc_grid", 16))
         self.ltc_cells_min_roughness = float(props.get("ltc_cells_min_roughness", 0.2))
+        self.ltc_window = int(props.get("ltc_window", 8))
+        self.ltc_window_min_roughness = float(props.get("ltc_window_min_roughness", 0.02))
         self.light_sampling = str(props.get("light_sampling", "uniform"))
         self.uniform_share = float(props.get("uniform_share", 0.25))
         if self.light_sampling not in LIGHT_SAMPLINGS:
@@ -363,6 +401,11 @@ class ImportanceIntegrator(mi.SamplingIntegrator):
         if not self.ltc_cells_min_roughness >= 0.0:
             raise ValueError(f"importance integrator: ltc_cells_min_roughness must be >= 0, "
                              f"got {self.ltc_cells_min_roughness}")
+        if self.ltc_window < 0:
+            raise ValueError(f"importance integrator: ltc_window must be >= 0 (0: off), got {self.ltc_window}")
+        if not self.ltc_window_min_roughness >= 0.0:
+            raise ValueError(f"importance integrator: ltc_window_min_roughness must be >= 0, "
+                             f"got {self.ltc_window_min_roughness}")
         if not 0.0 <= self.ltc_min_cos_view < 1.0:
             raise ValueError(f"importance integrator: ltc_min_cos_view must lie in [0, 1), got {self.ltc_min_cos_view}")
 
@@ -501,7 +544,7 @@ class ImportanceIntegrator(mi.SamplingIntegrator):
         if control is not None:
             n, _, _, _ = shape.bsdf().maps(si, ok)
             cv = _ControlVariate(lcd, control[0], control[1], self.cv_blocks, b, texel, H * W, P, n, si.wi,
-                                 control[2], self.ltc_grid)
+                                 control[2], self.ltc_grid, self.ltc_window)
         light = _PatternLight(lcd, batch, P, self.uniform_share, b) if self.light_sampling == "patterns" else None
         values = self.direct(scene, sampler, si, ok, first=b * P, count=P, cv=cv, light=light)
         # One kernel for all 3P channels; reduced one by one they would each re-trace the paths.
@@ -518,4 +561,5 @@ class ImportanceIntegrator(mi.SamplingIntegrator):
 
     def to_string(self):
         return (f"ImportanceIntegrator[sampler={self.sampler}, control_variate={self.control_variate}, "
-                f"cv_blocks={self.cv_blocks}, ltc_grid={self.ltc_grid}, light_sampling={self.light_sampling}]")
+                f"cv_blocks={self.cv_blocks}, ltc_grid={self.ltc_grid}, ltc_window={self.ltc_window}, "
+                f"light_sampling={self.light_sampling}]")

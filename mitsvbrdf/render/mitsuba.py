@@ -93,7 +93,9 @@ def render_mitsuba(svbrdf, patterns: Tensor, rig: Rig, *, spp: int = 64, seed: i
         cv = control_variate(svbrdf, patterns, rig, mode=integrator.control_variate,
                              blocks=integrator.cv_blocks, ltc_min_roughness=integrator.ltc_min_roughness,
                              ltc_min_cos_view=integrator.ltc_min_cos_view, ltc_grid=integrator.ltc_grid,
-                             ltc_cells_min_roughness=integrator.ltc_cells_min_roughness)
+                             ltc_cells_min_roughness=integrator.ltc_cells_min_roughness,
+                             ltc_window=integrator.ltc_window,
+                             ltc_window_min_roughness=integrator.ltc_window_min_roughness)
 
     @dr.wrap(source="torch", target="drjit")
     def batch(normal, diffuse, roughness, specular, drive, seed_value, block_rad, coeffs, lobe_grid):

@@ -23,9 +23,15 @@ ESTIMATORS = {"plain": {"sampler": "independent", "control_variate": "none"},
               "ltc-cv-4-blocks": {"control_variate": "ltc", "cv_blocks": 4},
               "ltc-cv-16-blocks": {"control_variate": "ltc", "cv_blocks": 16},
               "ltc-cv-pattern-light": {"control_variate": "ltc", "light_sampling": "patterns"},
-              DEFAULT: {"control_variate": "ltc-cells", "ltc_grid": 16, "ltc_cells_min_roughness": 0.2},
-              "ltc-cells-8-grid": {"control_variate": "ltc-cells", "ltc_grid": 8, "ltc_cells_min_roughness": 0.3},
-              "ltc-cells-32-grid": {"control_variate": "ltc-cells", "ltc_grid": 32, "ltc_cells_min_roughness": 0.1}}
+              DEFAULT: {"control_variate": "ltc-cells", "ltc_grid": 16, "ltc_cells_min_roughness": 0.2,
+                        "ltc_window": 8, "ltc_window_min_roughness": 0.02},
+              "ltc-cells-no-window": {"control_variate": "ltc-cells", "ltc_grid": 16, "ltc_cells_min_roughness": 0.2,
+                                      "ltc_window": 0},
+              "ltc-cells-window-4": {"control_variate": "ltc-cells", "ltc_window": 4},
+              "ltc-cells-8-grid": {"control_variate": "ltc-cells", "ltc_grid": 8, "ltc_cells_min_roughness": 0.3,
+                                   "ltc_window": 0},
+              "ltc-cells-32-grid": {"control_variate": "ltc-cells", "ltc_grid": 32, "ltc_cells_min_roughness": 0.1,
+                                    "ltc_window": 0}}
 
 
 def estimator_rigs(work: Path, names=None) -> dict[str, ms.Rig]:

@@ -44,8 +44,9 @@ def main() -> None:
         dest = args.out / "training_runs" / run.name
         dest.mkdir(parents=True, exist_ok=True)
         for name in ("metrics.csv", "loss.png", "config.json"):
-            if (run / name).exists():
-                shutil.copy(run / name, dest / name)
+            src, dst = run / name, dest / name
+            if src.exists() and not (dst.exists() and dst.samefile(src)):  # re-run on the copies: kept
+                shutil.copy(src, dst)
     # run folders by name only: where they lay on the machine that trained them is not the point
     about = f"{args.about} " if args.about else ""
     text = ("Command: `python benchmarks/training_log.py " + " ".join(f".../{r.name}" for r in runs)

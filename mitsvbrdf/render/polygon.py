@@ -30,30 +30,27 @@ def _unit(p: Tensor) -> Tensor:
     return p / torch.linalg.vector_norm(p, dim=-1, keepdim=True).clamp_min(1e-20)
 
 
+def _angle_over_sine(s: Tensor, c: Tensor) -> Tensor:
+    """theta / sin(theta) of the angle with sine s >= 0 and cosine c; -> 1 as the edge shrinks
+    (the clamp only guards the division)."""
+    return torch.where(s > 1e-12, torch.atan2(s, c) / s.clamp_min(1e-12), torch.ones_like(s))
+
+
 def _edge_vector(p: Tensor, q: Tensor) -> Tensor:
     """theta (p x q) / |p x q| for edges p -> q (..., 3); finite and differentiable when p ~ q."""
-    return _unit_edge_vector(_unit(p), _unit(q))
-
-
-def _unit_edge_vector(pn: Tensor, qn: Tensor) -> Tensor:
-    """:func:`_edge_vector` of unit vectors."""
+    pn, qn = _unit(p), _unit(q)
     cross = torch.linalg.cross(pn, qn, dim=-1)
     s = torch.linalg.vector_norm(cross, dim=-1, keepdim=True)
-    c = (pn * qn).sum(-1, keepdim=True)
-    theta = torch.atan2(s, c)
-    # theta / s -> 1 as the edge shrinks; the clamp only guards the division.
-    return torch.where(s > 1e-12, theta / s.clamp_min(1e-12), torch.ones_like(s)) * cross
+    return _angle_over_sine(s, (pn * qn).sum(-1, keepdim=True)) * cross
 
 
 def _unit_edge_z(pn: Tensor, qn: Tensor) -> Tensor:
-    """The z component of :func:`_unit_edge_vector`, without the full cross product:
-    |p x q| = sqrt(1 - (p . q)^2) for unit vectors. Where that loses precision (p ~ q), theta
-    comes from the same |p x q|, so theta / |p x q| stays ~1 and the term stays accurate."""
+    """The z component of :func:`_edge_vector` for unit vectors, without the full cross product:
+    |p x q| = sqrt(1 - (p . q)^2). Where that loses precision (p ~ q), theta comes from the same
+    |p x q|, so theta / |p x q| stays ~1 and the term stays accurate."""
     c = (pn * qn).sum(-1)
     s = (1.0 - c * c).clamp_min(0.0).sqrt()
-    cross_z = pn[..., 0] * qn[..., 1] - pn[..., 1] * qn[..., 0]
-    theta = torch.atan2(s, c)
-    return torch.where(s > 1e-12, theta / s.clamp_min(1e-12), torch.ones_like(s)) * cross_z
+    return _angle_over_sine(s, c) * (pn[..., 0] * qn[..., 1] - pn[..., 1] * qn[..., 0])
 
 
 def polygon_vector_form_factor(vertices: Tensor) -> Tensor:

@@ -169,7 +169,7 @@ class _ControlVariate:
     coefficients that module computed (so the closed-form part and the residual cannot disagree).
 
     Args: the ``lcd`` emitter; ``block_rad`` the flat (B, P, 3, K^2) block radiance; ``coeffs`` the
-    flat (B, H W, 7 + 3 P [+ 6]) per-texel coefficients; K; the lanes' material ``b`` and ``texel``
+    flat (B, H W, 7 + 3 P [+ 6 [+ 5 + w^2]]) per-texel coefficients; K; the lanes' material ``b`` and ``texel``
     index; the count P; the shading point's normal ``n`` and view direction (local); for
     "ltc-cells", ``lobe_grid`` the flat (B, H W, 2, (k + 1)^2) lobe values q_v, q^d_v, ``grid`` k and
     ``window`` w (0: no window term)."""
@@ -211,9 +211,10 @@ class _ControlVariate:
         y = self._point(u, v)
         return self.lcd._factor(mi.Point2f(u, v), dr.dot(dr.normalize(p_world - y), self.lcd_n))
 
-    def _cells(self, p_world, uv, hit, window_lobe) -> list:
+    def _cells(self, p_world, uv, cell, hit, window_lobe) -> list:
         """Per pattern, the per-cell terms (S q(y) + kd (1 - ks) q^d(y)) R_c(y) / G(y) at the LCD
-        point uv, plus ``window_lobe`` R_c (the window term, per sr; None without one)."""
+        point uv in ``cell`` (:meth:`_cell`), plus ``window_lobe`` R_c (the window term, per sr;
+        None without one)."""
         k, side = self.grid, self.grid + 1
         gu, gv = uv.x * k, uv.y * k
         col = dr.clip(mi.Int32(dr.floor(gu)), 0, k - 1)
@@ -233,7 +234,7 @@ class _ControlVariate:
         per_sr = dr.select(cos_emit > 0, dist2 / dr.maximum(cos_emit, 1e-12), 0.0) * lobe
         if window_lobe is not None:
             per_sr = per_sr + window_lobe
-        row_c, col_c = self._cell(uv)
+        row_c, col_c = cell
         centre = mi.Point2f((col_c + 0.5) / self.lcd.w, (row_c + 0.5) / self.lcd.h)
         first = self.b * self.count
         return [self.lcd.radiance(centre, mi.Float(1.0), first + p, hit) * per_sr for p in range(self.count)]
@@ -243,11 +244,11 @@ class _ControlVariate:
         return (dr.clip(dr.floor(uv.y * self.lcd.h), 0, self.lcd.h - 1),
                 dr.clip(dr.floor(uv.x * self.lcd.w), 0, self.lcd.w - 1))
 
-    def _window_cell(self, uv, hit):
-        """Whether uv lies in the texel's window (never for texels without one: their window lies
-        off the LCD), and omega_c of its cell there (0 elsewhere)."""
+    def _window_cell(self, cell, hit):
+        """Whether ``cell`` (:meth:`_cell`) lies in the texel's window (never for texels without
+        one: their window lies off the LCD), and its omega_c there (0 elsewhere)."""
         w = self.window
-        row_c, col_c = self._cell(uv)
+        row_c, col_c = cell
         i, j = mi.Int32(row_c) - self.win_row, mi.Int32(col_c) - self.win_col
         inside = hit & (i >= 0) & (i < w) & (j >= 0) & (j < w)
         at = self.omega_base + mi.UInt32(dr.select(inside, i * w + j, 0))
@@ -260,12 +261,13 @@ class _ControlVariate:
         if self.lobe_grid is not None:
             # "ltc-cells": the per-cell terms replace the block diffuse term (its weight is 0 in
             # this mode), so neither the block radiance nor the block decay is needed here
+            cell = self._cell(uv)
             if not self.window:
-                cells = self._cells(si.p, uv, hit, None)
+                cells = self._cells(si.p, uv, cell, hit, None)
                 return [dr.select(hit, self.spec[p] * d_s + cells[p], 0.0) for p in range(self.count)]
             # inside the window its cells' own radiance, outside it the one-radiance term
-            inside, omega = self._window_cell(uv, hit)
-            cells = self._cells(si.p, uv, hit, self.s_win * (omega * d_s))
+            inside, omega = self._window_cell(cell, hit)
+            cells = self._cells(si.p, uv, cell, hit, self.s_win * (omega * d_s))
             one = dr.select(inside, 0.0, d_s)
             return [dr.select(hit, self.spec[p] * one + cells[p], 0.0) for p in range(self.count)]
         K = self.K

@@ -408,7 +408,7 @@ def control_variate(svbrdf, patterns: Tensor, rig: Rig, *, mode: str = "ltc-cell
 
     m_entries = torch.zeros(B, H * W, 4, dtype=dt, device=dev)
     spec = torch.zeros(B, H * W, P, 3, dtype=dt, device=dev)
-    extra, lobe_grid = [], None
+    extra, lobe_grid, window_ff = [], None, None
     if mode != "diffuse":
         N = H * W
         nf, wf = n.reshape(-1, 3), wo.repeat(B, 1)  # (B N, 3), materials outermost
@@ -451,7 +451,7 @@ def control_variate(svbrdf, patterns: Tensor, rig: Rig, *, mode: str = "ltc-cell
                 # the one-radiance term stays where it is on, outside the window
                 window_ff = torch.zeros(B * N, dtype=dt, device=dev).index_put((lw.idx,), lw.outer)
         e = _warped_lcd_form_factor(frame, m_inv, corners, x, use)
-        if mode == "ltc-cells" and ltc_window:
+        if window_ff is not None:
             e = e - torch.where(use, window_ff, 0.0)
         lb = lbar.permute(0, 3, 1, 2).reshape(B * blocks * blocks, P, 3)  # (B K^2, P, 3)
         mat = torch.arange(B, device=dev).repeat_interleave(N)

@@ -128,12 +128,16 @@ def time_key(key: str) -> str:
     return "seconds_narrow" if r < NARROW_BELOW else "seconds_per_material_5_patterns"
 
 
+def spp_rows(rows: list[dict], est: str) -> list[dict]:
+    """The rows of estimator ``est``'s spp curve (methods "<est>-<n>spp")."""
+    return [r for r in rows if r["method"].startswith(est + "-") and r["method"][len(est) + 1:].rstrip("spp").isdigit()]
+
+
 def at_time(rows: list[dict], est: str, key: str, seconds: float, time_column: str) -> float | None:
     """Error of estimator ``est`` at ``seconds`` of ``time_column``, interpolated log-log along its
     spp curve (its last point beyond the measured range; None when even its fastest point takes
     longer: it has no estimate in that time)."""
-    pts = sorted((r[time_column], r[key]) for r in rows if r["method"].startswith(est + "-")
-                 and r["method"][len(est) + 1:].rstrip("spp").isdigit())
+    pts = sorted((r[time_column], r[key]) for r in spp_rows(rows, est))
     if seconds < pts[0][0]:
         return None
     for (t0, e0), (t1, e1) in zip(pts, pts[1:]):
@@ -250,8 +254,7 @@ def main() -> None:
         column = time_key(k)
         e = at_time(rows, DEFAULT, k, pre[column], column)
         if e is None:
-            fastest = min(r[column] for r in rows if r["method"].startswith(DEFAULT + "-")
-                          and r["method"][len(DEFAULT) + 1:].rstrip("spp").isdigit())
+            fastest = min(r[column] for r in spp_rows(rows, DEFAULT))
             verdict.append(f"{k}: NOT reached, its fastest render takes {fastest:.3f} s against "
                            f"{pre[column]:.3f} s")
         else:
@@ -299,7 +302,7 @@ def plot(rows: list[dict], keys: list[str], proc_rows: list[dict], args) -> None
     med = {r["method"]: float(torch.tensor([r[k] for k in keys]).median()) for r in rows}
     secs = {r["method"]: r["seconds_per_material_5_patterns"] for r in rows}
     for est in ESTIMATORS:
-        names = [n for n in secs if n.startswith(est + "-") and n[len(est) + 1:].rstrip("spp").isdigit()]
+        names = [r["method"] for r in spp_rows(rows, est)]
         ax.plot([secs[n] for n in names], [med[n] for n in names], "o-", label=f"Mitsuba {est} (1..256 spp)",
                 linewidth=2.5 if est == DEFAULT else 1.2)
     for n, marker in (("ltc-exact", "s"), ("ltc-prefiltered", "^")):

@@ -18,7 +18,7 @@ from mitsvbrdf import backend
 from mitsvbrdf import patterns as pt
 from mitsvbrdf.capture.scene_file import write_integrator_options
 from mitsvbrdf.errors import SceneError
-from mitsvbrdf.render.control_variate import control_variate
+from mitsvbrdf.render.control_variate import LAST_MATERIALS, control_variate
 from mitsvbrdf.rig import DEFAULT_SCENE
 
 from conftest import flat_material, textured_material
@@ -382,6 +382,64 @@ def test_window_holds_the_cell_of_the_mirror_direction_and_lies_on_the_lcd(rig):
     assert on_lcd.sum() >= 8 and inside[on_lcd].all()
     at_edge = (origin == 0).any(-1) | (origin[:, 0] == h - w) | (origin[:, 1] == wc - w)
     assert (~on_lcd).any() and at_edge[~on_lcd].all()
+
+
+def _fresh_control_variate(m, p, rig, **options):
+    LAST_MATERIALS.clear()
+    return control_variate(m, p, rig, **options)
+
+
+@pytest.mark.parametrize("mode", ["diffuse", "ltc", "ltc-cells"])
+def test_new_patterns_on_the_same_maps_reuse_the_material_terms(rig, mode):
+    """A training step and an acquisition render the same materials twice (I_0, then the
+    adaptive patterns): the second call takes the material terms of the first, and its result is
+    exactly what a call without them computes."""
+    m = textured_material(8, seed=5, roughness=(0.05, 0.6))
+    _fresh_control_variate(m, pt.monograd()[:1], rig, mode=mode)
+    second = control_variate(m, pt.random(n=4, seed=6), rig, mode=mode)
+    assert LAST_MATERIALS.hits == 1
+    fresh = _fresh_control_variate(m, pt.random(n=4, seed=6), rig, mode=mode)
+    for field in ("block_radiance", "texel", "known", "lobe_grid"):
+        a, b = getattr(second, field), getattr(fresh, field)
+        assert (a is None and b is None) or torch.equal(a, b), field
+
+
+def test_maps_changed_in_place_get_new_material_terms(rig):
+    """Same map tensors, new values (their version counters moved): nothing is reused."""
+    m = textured_material(8, seed=5, roughness=(0.05, 0.6))
+    p = pt.random(n=2, seed=6)
+    before = _fresh_control_variate(m, p, rig)
+    with torch.no_grad():
+        m.roughness.mul_(0.5)
+    after = control_variate(m, p, rig)
+    assert LAST_MATERIALS.hits == 0 and not torch.equal(after.known, before.known)
+    torch.testing.assert_close(after.known, _fresh_control_variate(m, p, rig).known, rtol=0, atol=0)
+
+
+def test_other_options_get_new_material_terms(rig):
+    m = textured_material(8, seed=5, roughness=(0.05, 0.6))
+    p = pt.random(n=2, seed=6)
+    _fresh_control_variate(m, p, rig, ltc_window=4)
+    control_variate(m, p, rig, ltc_window=8)
+    control_variate(m, p, rig, ltc_window=8, ltc_grid=8)
+    assert LAST_MATERIALS.hits == 0
+
+
+def test_maps_that_require_gradients_keep_their_own_graph(rig):
+    """Terms of maps that require gradients are never reused: each call's known part has its own
+    graph back to the maps, so both calls' gradients reach them."""
+    m = textured_material(8, seed=5, roughness=(0.2, 0.6))
+    m.roughness.requires_grad_(True)
+    LAST_MATERIALS.clear()
+    first = control_variate(m, pt.uniform(value=0.5), rig).known.sum()
+    second = control_variate(m, pt.uniform(value=0.7), rig).known.sum()
+    assert LAST_MATERIALS.hits == 0
+    (g1,) = torch.autograd.grad(first, m.roughness)
+    (g2,) = torch.autograd.grad(second, m.roughness)
+    assert g1.abs().max() > 0
+    # the known part is linear in the pattern's radiance, uniform here: the gradients scale with it
+    ratio = (rig.display_radiance(pt.uniform(value=0.7)) / rig.display_radiance(pt.uniform(value=0.5))).mean()
+    torch.testing.assert_close(g2, g1 * ratio, rtol=1e-4, atol=1e-6 * float(g1.abs().max()))
 
 
 def test_specular_control_variate_is_off_at_grazing_views(rig):

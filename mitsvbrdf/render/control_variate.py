@@ -85,11 +85,17 @@ but costs four times the 8 x 8 one's edges per texel.
 
 Shapes: B materials, P patterns, texels in row-major (H, W) order. Everything is differentiable
 w.r.t. patterns and maps (torch autograd), as the residual is on the plugin's side.
+
+Most of the work (the LTC lookup, the lobe grid, the window's form factors, the warped LCD) depends
+on the maps alone; the patterns enter through a few products at the end. A training step and an
+acquisition render the same materials twice (I_0 under L_0, then the adaptive patterns), so the
+maps' part of the last call is kept (:data:`LAST_MATERIALS`) and reused for the same map tensors,
+unchanged in place, whenever they do not require gradients.
 """
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from functools import lru_cache
 
 import torch
@@ -194,17 +200,15 @@ def _tent_weights(cells: int, k: int, dtype=torch.float64) -> Tensor:
     return w
 
 
-#: Elements of the (B, texels, 4, V) products that one chunk of :func:`_cells_term` holds: the
+#: Elements of the (B, texels, 4, V) products that one chunk of :func:`_lobe_grid` holds: the
 #: chunk's temporaries then stay in cache (one pass over all texels at 64 px, B = 4, k = 16 moves
 #: ~80 MB per temporary, and took twice as long).
 CHUNK_ELEMENTS = 2 ** 20
 
 
-def _cells_term(rig: Rig, H: int, W: int, k: int, frame: Tensor, m_inv: Tensor, n: Tensor,
-                rad: Tensor) -> tuple[Tensor, Tensor]:
+def _lobe_grid(rig: Rig, H: int, W: int, k: int, frame: Tensor, m_inv: Tensor, n: Tensor) -> Tensor:
     """For B N texels (frame and M^-1 (B N, 3, 3), normals n (B, N, 3), materials outermost): the
-    lobe values (B, N, 2, V) at the grid vertices (q_v, then q^d_v), and T_{p,v} (B, P, 3, V) of
-    the cell radiance ``rad`` (B, P, 3, h, w) without decay."""
+    lobe values (B, N, 2, V) at the grid vertices, q_v then q^d_v."""
     d, g = (t.to(frame.device, frame.dtype) for t in _grid_geometry(rig, H, W, k))
     N, V = g.shape
     B = frame.shape[0] // N
@@ -220,10 +224,13 @@ def _cells_term(rig: Rig, H: int, W: int, k: int, frame: Tensor, m_inv: Tensor, 
         len2 = wl[:, :, :3].square().sum(2).clamp_min(1e-24)
         chunks.append(torch.stack([wl[:, :, 2].clamp_min(0.0) * (det[:, i:j] * gc) / len2.square(),
                                    wl[:, :, 3].clamp_min(0.0) * (gc / torch.pi)], 2))
-    lobe = torch.cat(chunks, 1)
+    return torch.cat(chunks, 1)
+
+
+def _grid_radiance(rig: Rig, k: int, rad: Tensor) -> Tensor:
+    """T_{p,v} (B, P, 3, V) of the cell radiance ``rad`` (B, P, 3, h, w) without decay."""
     tv, tu, scale = (t.to(rad.device, rad.dtype) for t in _cell_weights(rig, k))
-    t = tv @ (rad * scale) @ tu.T  # (B, P, 3, k + 1, k + 1)
-    return lobe, t.flatten(-2)
+    return (tv @ (rad * scale) @ tu.T).flatten(-2)  # (B, P, 3, (k + 1)^2)
 
 
 @lru_cache(maxsize=8)
@@ -248,45 +255,43 @@ def _cell_weights(rig: Rig, k: int) -> tuple[Tensor, Tensor, Tensor]:
 
 @dataclass
 class _LobeWindow:
-    """The window term at texels ``idx`` (n,) of the B N: the window's first cell row and column
-    (n, 2), omega_c (n, w^2), sum_c omega_c E_c R_c (n, P, 3) without S, and the LTC's integral
-    over the whole window (n,), horizon-clipped (what the one-radiance term leaves out)."""
+    """The window term's material part at texels ``idx`` (n,) of the B N: each window's row in
+    the table of w x w patches of its material's cells (n,) (:func:`_window_integral`), its first
+    cell row and column (n, 2), omega_c (n, w^2), omega_c E_c (n, w^2), the LTC's integral over the
+    whole window (n,), horizon-clipped (what the one-radiance term leaves out), and S there (n, 3)."""
 
     idx: Tensor
+    patch: Tensor
     origin: Tensor
     omega: Tensor
-    integral: Tensor
+    weight: Tensor
     outer: Tensor
+    s: Tensor | None = None
 
 
 def _lobe_window(rig: Rig, w: int, frame: Tensor, m_inv: Tensor, x: Tensor, peak_uv: Tensor,
-                 where: Tensor, rad: Tensor) -> _LobeWindow:
-    """The window term (module docstring) where ``where`` (B N,) is true: frames and M^-1
-    (B N, 3, 3), texel positions ``x`` (N, 3), ``peak_uv`` (B N, 2) where the lobe's peak meets
-    the LCD, cell radiance ``rad`` (B, P, 3, h, w) without decay. In chunks of texels, as
-    :func:`_cells_term` (at 128 px and w = 8 in one pass it took three times as long)."""
+                 where: Tensor) -> _LobeWindow:
+    """The window term's material part (module docstring) where ``where`` (B N,) is true: frames
+    and M^-1 (B N, 3, 3), texel positions ``x`` (N, 3), ``peak_uv`` (B N, 2) where the lobe's peak
+    meets the LCD. In chunks of texels, as :func:`_lobe_grid` (at 128 px and w = 8 in one pass it
+    took three times as long)."""
     h, wc = rig.lcd_cells
     if not 1 <= w <= min(h, wc):
         raise ValueError(f"ltc_window = {w} must lie in [1, {min(h, wc)}] (the LCD has {h} x {wc} cells)")
     idx = where.nonzero().squeeze(1)
-    B, P = rad.shape[:2]
     dev, dt = frame.device, frame.dtype
-    # Every w x w patch of each material's cell radiance, one row per window position: a texel
-    # gathers one contiguous row instead of w^2 scattered cells.
-    lit = rad.reshape(B, P * 3, h, wc) * _position_factor(rig).to(dev, dt)
-    patches = torch.nn.functional.unfold(lit, w).transpose(1, 2).reshape(-1, P * 3, w * w)  # (B places, 3 P, w^2)
     step = max(1, CHUNK_ELEMENTS // (3 * (w + 1) ** 2))
-    parts = [_window_chunk(rig, w, frame, m_inv, x, peak_uv, idx[i:i + step], patches)
-             for i in range(0, idx.numel(), step)]
+    parts = [_window_chunk(rig, w, frame, m_inv, x, peak_uv, idx[i:i + step]) for i in range(0, idx.numel(), step)]
     if not parts:
-        return _LobeWindow(idx, torch.zeros(0, 2, dtype=dt, device=dev), torch.zeros(0, w * w, dtype=dt, device=dev),
-                           torch.zeros(0, P, 3, dtype=dt, device=dev), torch.zeros(0, dtype=dt, device=dev))
+        return _LobeWindow(idx, torch.zeros(0, dtype=torch.long, device=dev), torch.zeros(0, 2, dtype=dt, device=dev),
+                           *(torch.zeros(0, w * w, dtype=dt, device=dev) for _ in range(2)),
+                           torch.zeros(0, dtype=dt, device=dev))
     return _LobeWindow(idx, *(torch.cat(t) for t in zip(*parts)))
 
 
-def _window_chunk(rig: Rig, w: int, frame: Tensor, m_inv: Tensor, x: Tensor, peak_uv: Tensor, idx: Tensor,
-                  patches: Tensor) -> tuple[Tensor, Tensor, Tensor, Tensor]:
-    """:func:`_lobe_window`'s origin, omega, integral and outer at texels ``idx`` (n,)."""
+def _window_chunk(rig: Rig, w: int, frame: Tensor, m_inv: Tensor, x: Tensor, peak_uv: Tensor,
+                  idx: Tensor) -> tuple[Tensor, Tensor, Tensor, Tensor, Tensor]:
+    """:func:`_lobe_window`'s patch, origin, omega, weight and outer at texels ``idx`` (n,)."""
     h, wc = rig.lcd_cells
     n, N = idx.numel(), x.shape[0]
     dev, dt = frame.device, frame.dtype
@@ -318,11 +323,25 @@ def _window_chunk(rig: Rig, w: int, frame: Tensor, m_inv: Tensor, x: Tensor, pea
         omega = omega * rig.display.decay(torch.full((*cos_emit.shape, 2), 0.5, dtype=dt, device=dev), cos_emit)
     omega = omega.reshape(n, -1)
     places = (h - w + 1) * (wc - w + 1)
-    rows = patches[(idx // N) * places + row0.long() * (wc - w + 1) + col0.long()]  # (n, 3 P, w^2)
-    integral = torch.bmm(rows, (omega * e.reshape(n, -1))[..., None]).reshape(n, -1, 3)
+    patch = (idx // N) * places + row0.long() * (wc - w + 1) + col0.long()
     rim = torch.stack([warped[:, 0, 0], warped[:, 0, -1], warped[:, -1, -1], warped[:, -1, 0]], 1)
     outer = clipped_polygon_vector_form_factor(rim)[:, 2].abs()
-    return torch.stack([row0, col0], -1), omega, integral, outer
+    return patch, torch.stack([row0, col0], -1), omega, omega * e.reshape(n, -1), outer
+
+
+def _window_integral(rig: Rig, win: _LobeWindow, w: int, rad: Tensor) -> Tensor:
+    """sum_c omega_c E_c R_c (n, P, 3) without S at the window's texels, for the cell radiance
+    ``rad`` (B, P, 3, h, w) without decay."""
+    h, wc = rig.lcd_cells
+    B, P = rad.shape[:2]
+    # Every w x w patch of each material's cell radiance, one row per window position: a texel
+    # gathers one contiguous row instead of w^2 scattered cells.
+    lit = rad.reshape(B, P * 3, h, wc) * _position_factor(rig).to(rad.device, rad.dtype)
+    patches = torch.nn.functional.unfold(lit, w).transpose(1, 2).reshape(-1, P * 3, w * w)  # (B places, 3 P, w^2)
+    step = max(1, CHUNK_ELEMENTS // (3 * P * w * w))
+    parts = [torch.bmm(patches[win.patch[i:i + step]], win.weight[i:i + step, :, None])
+             for i in range(0, win.idx.numel(), step)]
+    return torch.cat(parts).reshape(-1, P, 3) if parts else rad.new_zeros(0, P, 3)
 
 
 def _warped_lcd_form_factor(frame: Tensor, m_inv: Tensor, corners: Tensor, x: Tensor, where: Tensor) -> Tensor:
@@ -362,28 +381,47 @@ def _peak_block(rig: Rig, uv: Tensor, x: Tensor, k: int) -> tuple[Tensor, Tensor
 MODES = ("diffuse", "ltc", "ltc-cells")
 
 
-def control_variate(svbrdf, patterns: Tensor, rig: Rig, *, mode: str = "ltc-cells", blocks: int = 8,
-                    ltc_min_roughness: float = 0.1, ltc_min_cos_view: float = 0.1, ltc_grid: int = 16,
-                    ltc_cells_min_roughness: float = 0.2, ltc_window: int = 8,
-                    ltc_window_min_roughness: float = 0.02) -> ControlVariate:
-    """The control variate of B materials under P patterns ((P, 3, h, w) or (B, P, 3, h, w)).
+@dataclass
+class _MaterialTerms:
+    """The part of the control variate that depends on the materials and not on the patterns
+    (:func:`_material_terms`), for B materials of N texels.
 
-    ``mode``: "diffuse", "ltc" (diffuse + specular under one radiance per texel) or "ltc-cells"
-    (that, with the specular lobe under every cell's radiance where roughness >=
-    ``ltc_cells_min_roughness``, on a ``ltc_grid`` grid, and with ``ltc_window`` > 0 under the
-    cells of a window around the peak of narrower lobes down to ``ltc_window_min_roughness``);
-    ``blocks``: K; see the module docstring.
+    Attributes:
+        kdd: (B, N, 3) the block diffuse term's weight kd (1 - ks) (0 where it is off).
+        block_ff: (B, N, K^2) n . Phi'_b for the block diffuse term (None in mode "ltc-cells").
+        m_entries: (B, N, 4) the LTC's M^-1 entries.
+        block: (B N,) the peak block of each texel, offset by its material's K^2 blocks (None in
+            mode "diffuse").
+        spec_weight: (B N, 3) S times the peak block's decay where the one-radiance term is on,
+            else 0 (None in mode "diffuse").
+        spec_ff: (B N,) E(M^-1 LCD), less the window's part where a window runs.
+        lobe_grid: (B, N, 2, V) mode "ltc-cells": q_v, q^d_v; else None.
+        s_cells, kd_cells: (B, N, 3) the per-cell terms' weights (mode "ltc-cells").
+        window: the window term's material part (None without one).
+        extra: the per-texel floats after c_p S in :attr:`ControlVariate.texel`.
     """
-    if mode not in MODES:
-        raise ValueError(f"control variate mode must be one of {', '.join(MODES)}, got {mode!r}")
+
+    kdd: Tensor
+    m_entries: Tensor
+    block_ff: Tensor | None = None
+    block: Tensor | None = None
+    spec_weight: Tensor | None = None
+    spec_ff: Tensor | None = None
+    lobe_grid: Tensor | None = None
+    s_cells: Tensor | None = None
+    kd_cells: Tensor | None = None
+    window: _LobeWindow | None = None
+    extra: list = field(default_factory=list)
+
+
+def _material_terms(svbrdf, rig: Rig, mode: str, blocks: int, ltc_min_roughness: float, ltc_min_cos_view: float,
+                    ltc_grid: int, ltc_cells_min_roughness: float, ltc_window: int,
+                    ltc_window_min_roughness: float) -> _MaterialTerms:
+    """:class:`_MaterialTerms` of ``svbrdf`` (the options as :func:`control_variate`'s)."""
     B = svbrdf.batch_size
     H, W = svbrdf.resolution
+    N = H * W
     dev, dt = svbrdf.normal.device, svbrdf.normal.dtype
-    h, w = rig.lcd_cells
-    P = patterns.shape[-4]
-    rad = rig.material_radiance(patterns, B, dev, dt).reshape(B, P, 3, h, w)
-    lbar = _block_average(rad, blocks)  # (B, P, 3, K^2)
-
     n = torch.nn.functional.normalize(svbrdf.normal.reshape(B, 3, -1).transpose(1, 2), dim=-1)  # (B, N, 3)
     kd = svbrdf.diffuse.reshape(B, 3, -1).transpose(1, 2)
     ks = svbrdf.specular.reshape(B, 3, -1).transpose(1, 2)
@@ -394,70 +432,148 @@ def control_variate(svbrdf, patterns: Tensor, rig: Rig, *, mode: str = "ltc-cell
     cos_v = (n * wo).sum(-1)  # (B, N)
     ok = (cos_v > 0) & (wo[:, 2] > 0)
     # (Broadcast products below, not einsum: einsum lowers these to bmm over 10^4 tiny matrices.)
-    if mode == "ltc-cells":  # the diffuse lobe goes per cell too (below)
-        kdd = torch.zeros_like(kd)
-        known = torch.zeros(B, P, H * W, 3, dtype=dt, device=dev)
+    if mode == "ltc-cells":  # the diffuse lobe goes per cell (below)
+        terms = _MaterialTerms(kdd=torch.zeros_like(kd), m_entries=torch.zeros(B, N, 4, dtype=dt, device=dev))
     else:
         above = ((n[:, None] * (corners[:, None] - x[None])[None]).sum(-1) > 0).all(1)
         kdd = torch.where((ok & above)[..., None], kd * (1 - ks), torch.zeros_like(kd))  # (B, N, 3)
         phi = _block_form_factors(rig, H, W, blocks).to(dev, dt)  # (3, N, K^2)
         ff = n[:, :, 0:1] * phi[0]  # n . Phi_b: (B, N, K^2), one temporary
         ff.addcmul_(n[:, :, 1:2], phi[1]).addcmul_(n[:, :, 2:3], phi[2])
-        known = torch.bmm(ff, lbar.reshape(B, P * 3, -1).transpose(1, 2)).reshape(B, -1, P, 3)
-        known = kdd[:, None] * known.permute(0, 2, 1, 3)  # (B, P, N, 3)
+        terms = _MaterialTerms(kdd=kdd, m_entries=torch.zeros(B, N, 4, dtype=dt, device=dev), block_ff=ff)
+    if mode == "diffuse":
+        return terms
+    nf, wf = n.reshape(-1, 3), wo.repeat(B, 1)  # (B N, 3), materials outermost
+    frame, _ = view_frame(nf, wf)
+    m_inv, a_one, a_s = default_table().lookup(r.reshape(-1), cos_v.reshape(-1))
+    a, bb, c, d = m_inv[:, 0, 0], m_inv[:, 0, 2], m_inv[:, 1, 1], m_inv[:, 2, 0]
+    terms.m_entries = torch.stack([a, bb, c, d], -1).reshape(B, N, 4)
+    # The lobe's peak direction M z: for M^-1 = [[a, 0, b], [0, c, 0], [d, 0, 1]], along (-b, 0, a)/(a - b d).
+    peak = torch.nn.functional.normalize(torch.stack([-bb, torch.zeros_like(a), a], -1)
+                                         * torch.sign(a - bb * d)[:, None], dim=-1)
+    xb = x.repeat(B, 1)
+    peak_uv = _peak_uv(rig, xb, (frame * peak[..., None]).sum(1))
+    block, decay = _peak_block(rig, peak_uv, xb, blocks)
+    terms.block = torch.arange(B, device=dev).repeat_interleave(N) * blocks * blocks + block
+    fits = ok.reshape(-1) & (cos_v.reshape(-1) >= ltc_min_cos_view)
+    use = fits & (r.reshape(-1) >= ltc_min_roughness)
+    s_all = ks.reshape(-1, 3) * (a_one - a_s)[:, None] + a_s[:, None]
+    s = torch.where(use[:, None], s_all, 0.0)
+    window_ff = None
+    if mode == "ltc-cells":
+        cells = (use & (r.reshape(-1) >= ltc_cells_min_roughness))[:, None]
+        terms.s_cells, s = torch.where(cells, s, 0.0).reshape(B, N, 3), torch.where(cells, 0.0, s)
+        terms.kd_cells = torch.where(ok[..., None], kd * (1 - ks), torch.zeros_like(kd))
+        terms.lobe_grid = _lobe_grid(rig, H, W, ltc_grid, frame, m_inv, n)  # (B, N, 2, V)
+        terms.extra = [terms.s_cells, terms.kd_cells]
+        use = use & ~cells[:, 0]  # where the one-radiance term is left
+        if ltc_window:
+            win = fits & (r.reshape(-1) >= ltc_window_min_roughness) & ~cells[:, 0]
+            lw = _lobe_window(rig, ltc_window, frame, m_inv, x, peak_uv, win)
+            s_win = torch.where(win[:, None], s_all, 0.0)
+            lw.s = s_win[lw.idx]
+            # Texels without a window get one off the LCD, so that no direction falls in it.
+            off = torch.cat([torch.full((B * N, 2), -float(max(rig.lcd_cells)), dtype=dt, device=dev),
+                             torch.zeros(B * N, ltc_window ** 2, dtype=dt, device=dev)], -1)
+            placed = off.index_put((lw.idx,), torch.cat([lw.origin, lw.omega], -1))
+            terms.extra += [s_win.reshape(B, N, 3), placed.reshape(B, N, -1)]
+            terms.window = lw
+            # the one-radiance term stays where it is on, outside the window
+            window_ff = torch.zeros(B * N, dtype=dt, device=dev).index_put((lw.idx,), lw.outer)
+    e = _warped_lcd_form_factor(frame, m_inv, corners, x, use)
+    terms.spec_ff = e if window_ff is None else e - torch.where(use, window_ff, 0.0)
+    terms.spec_weight = s * decay[:, None]
+    return terms
 
-    m_entries = torch.zeros(B, H * W, 4, dtype=dt, device=dev)
-    spec = torch.zeros(B, H * W, P, 3, dtype=dt, device=dev)
-    extra, lobe_grid, window_ff = [], None, None
-    if mode != "diffuse":
-        N = H * W
-        nf, wf = n.reshape(-1, 3), wo.repeat(B, 1)  # (B N, 3), materials outermost
-        frame, _ = view_frame(nf, wf)
-        m_inv, a_one, a_s = default_table().lookup(r.reshape(-1), cos_v.reshape(-1))
-        a, bb, c, d = m_inv[:, 0, 0], m_inv[:, 0, 2], m_inv[:, 1, 1], m_inv[:, 2, 0]
-        m_entries = torch.stack([a, bb, c, d], -1).reshape(B, N, 4)
-        # The lobe's peak direction M z: for M^-1 = [[a, 0, b], [0, c, 0], [d, 0, 1]], along (-b, 0, a)/(a - b d).
-        peak = torch.nn.functional.normalize(torch.stack([-bb, torch.zeros_like(a), a], -1)
-                                             * torch.sign(a - bb * d)[:, None], dim=-1)
-        xb = x.repeat(B, 1)
-        peak_uv = _peak_uv(rig, xb, (frame * peak[..., None]).sum(1))
-        block, decay = _peak_block(rig, peak_uv, xb, blocks)
-        fits = ok.reshape(-1) & (cos_v.reshape(-1) >= ltc_min_cos_view)
-        use = fits & (r.reshape(-1) >= ltc_min_roughness)
-        s_all = ks.reshape(-1, 3) * (a_one - a_s)[:, None] + a_s[:, None]
-        s = torch.where(use[:, None], s_all, 0.0)
-        if mode == "ltc-cells":
-            cells = (use & (r.reshape(-1) >= ltc_cells_min_roughness))[:, None]
-            s_cells, s = torch.where(cells, s, 0.0).reshape(B, N, 3), torch.where(cells, 0.0, s)
-            kd_cells = torch.where(ok[..., None], kd * (1 - ks), torch.zeros_like(kd))
-            lobe_grid, t = _cells_term(rig, H, W, ltc_grid, frame, m_inv, n, rad)  # (B, N, 2, V)
-            t = t.reshape(B, P * 3, -1).transpose(1, 2)  # (B, V, 3 P)
-            both = torch.bmm(lobe_grid.reshape(B, 2 * N, -1), t).reshape(B, N, 2, P, 3)
-            per_cell = s_cells[:, :, None] * both[:, :, 0] + kd_cells[:, :, None] * both[:, :, 1]
-            known = known + per_cell.permute(0, 2, 1, 3)
-            extra = [s_cells, kd_cells]
-            use = use & ~cells[:, 0]  # where the one-radiance term is left
-            if ltc_window:
-                win = fits & (r.reshape(-1) >= ltc_window_min_roughness) & ~cells[:, 0]
-                lw = _lobe_window(rig, ltc_window, frame, m_inv, x, peak_uv, win, rad)
-                s_win = torch.where(win[:, None], s_all, 0.0)
-                known = known + torch.zeros(B * N, P, 3, dtype=dt, device=dev).index_put(
-                    (lw.idx,), s_win[lw.idx, None] * lw.integral).reshape(B, N, P, 3).permute(0, 2, 1, 3)
-                # Texels without a window get one off the LCD, so that no direction falls in it.
-                off = torch.cat([torch.full((B * N, 2), -float(max(rig.lcd_cells)), dtype=dt, device=dev),
-                                 torch.zeros(B * N, ltc_window ** 2, dtype=dt, device=dev)], -1)
-                placed = off.index_put((lw.idx,), torch.cat([lw.origin, lw.omega], -1))
-                extra += [s_win.reshape(B, N, 3), placed.reshape(B, N, -1)]
-                # the one-radiance term stays where it is on, outside the window
-                window_ff = torch.zeros(B * N, dtype=dt, device=dev).index_put((lw.idx,), lw.outer)
-        e = _warped_lcd_form_factor(frame, m_inv, corners, x, use)
-        if window_ff is not None:
-            e = e - torch.where(use, window_ff, 0.0)
-        lb = lbar.permute(0, 3, 1, 2).reshape(B * blocks * blocks, P, 3)  # (B K^2, P, 3)
-        mat = torch.arange(B, device=dev).repeat_interleave(N)
-        cp = lb[mat * blocks * blocks + block]  # (B N, P, 3)
-        spec = (cp * (s * decay[:, None])[:, None]).reshape(B, N, P, 3)
-        known = known + (spec * e.reshape(B, N, 1, 1)).permute(0, 2, 1, 3)
-    texel = torch.cat([m_entries, kdd, spec.reshape(B, H * W, 3 * P), *extra], -1)
+
+def _maps_version(svbrdf) -> tuple | None:
+    """The identity and in-place version of the four maps, or None where the terms of this call
+    must not outlive it (maps that require gradients need this call's graph; inference tensors
+    have no version counter)."""
+    maps = (svbrdf.normal, svbrdf.diffuse, svbrdf.roughness, svbrdf.specular)
+    if any(m.requires_grad or m.is_inference() for m in maps):
+        return None
+    return tuple((id(m), m._version) for m in maps)
+
+
+class _LastMaterials:
+    """The material terms of the last material batch rendered: a training step and an acquisition
+    render the same materials twice (I_0 under L_0, then the adaptive patterns), and the terms do
+    not depend on the patterns. One entry; it keeps its maps alive, so that their ids stay theirs;
+    reused only for the same map tensors, unchanged in place (their version counters), with the
+    same rig and options."""
+
+    def __init__(self):
+        self.clear()
+
+    def clear(self) -> None:
+        self.key, self.maps, self.terms, self.hits = None, None, None, 0
+
+    def terms_for(self, svbrdf, rig: Rig, options: tuple, compute) -> _MaterialTerms:
+        version = _maps_version(svbrdf)
+        if version is None:
+            return compute()
+        key = (rig, options, version)
+        if self.terms is not None and self.key == key:
+            self.hits += 1
+            return self.terms
+        self.clear()  # the old entry's memory first: at 256 px its lobe grid is ~150 MB a material
+        self.terms = compute()
+        self.key, self.maps = key, (svbrdf.normal, svbrdf.diffuse, svbrdf.roughness, svbrdf.specular)
+        return self.terms
+
+
+#: The material terms of the last materials rendered (:class:`_LastMaterials`).
+LAST_MATERIALS = _LastMaterials()
+
+
+def control_variate(svbrdf, patterns: Tensor, rig: Rig, *, mode: str = "ltc-cells", blocks: int = 8,
+                    ltc_min_roughness: float = 0.1, ltc_min_cos_view: float = 0.1, ltc_grid: int = 16,
+                    ltc_cells_min_roughness: float = 0.2, ltc_window: int = 8,
+                    ltc_window_min_roughness: float = 0.02) -> ControlVariate:
+    """The control variate of B materials under P patterns ((P, 3, h, w) or (B, P, 3, h, w)).
+
+    ``mode``: "diffuse", "ltc" (diffuse + specular under one radiance per texel) or "ltc-cells"
+    (that, with the specular lobe under every cell's radiance where roughness >=
+    ``ltc_cells_min_roughness``, on a ``ltc_grid`` grid, and with ``ltc_window`` > 0 under the
+    cells of a window around the peak of narrower lobes down to ``ltc_window_min_roughness``);
+    ``blocks``: K; see the module docstring. What depends on the materials alone is reused from
+    the last call with the same maps (:data:`LAST_MATERIALS`), so a second set of patterns on the
+    same materials costs only the patterns' part.
+    """
+    if mode not in MODES:
+        raise ValueError(f"control variate mode must be one of {', '.join(MODES)}, got {mode!r}")
+    B = svbrdf.batch_size
+    H, W = svbrdf.resolution
+    N = H * W
+    dev, dt = svbrdf.normal.device, svbrdf.normal.dtype
+    h, w = rig.lcd_cells
+    P = patterns.shape[-4]
+    rad = rig.material_radiance(patterns, B, dev, dt).reshape(B, P, 3, h, w)
+    options = (mode, blocks, ltc_min_roughness, ltc_min_cos_view, ltc_grid, ltc_cells_min_roughness, ltc_window,
+               ltc_window_min_roughness)
+    terms = LAST_MATERIALS.terms_for(svbrdf, rig, options, lambda: _material_terms(svbrdf, rig, *options))
+    lbar = _block_average(rad, blocks)  # (B, P, 3, K^2)
+
+    if terms.block_ff is None:
+        known = torch.zeros(B, P, N, 3, dtype=dt, device=dev)
+    else:
+        known = torch.bmm(terms.block_ff, lbar.reshape(B, P * 3, -1).transpose(1, 2)).reshape(B, -1, P, 3)
+        known = terms.kdd[:, None] * known.permute(0, 2, 1, 3)  # (B, P, N, 3)
+    spec = torch.zeros(B, N, P, 3, dtype=dt, device=dev)
+    if terms.lobe_grid is not None:
+        t = _grid_radiance(rig, ltc_grid, rad).reshape(B, P * 3, -1).transpose(1, 2)  # (B, V, 3 P)
+        both = torch.bmm(terms.lobe_grid.reshape(B, 2 * N, -1), t).reshape(B, N, 2, P, 3)
+        per_cell = terms.s_cells[:, :, None] * both[:, :, 0] + terms.kd_cells[:, :, None] * both[:, :, 1]
+        known = known + per_cell.permute(0, 2, 1, 3)
+    if terms.window is not None:
+        lw = terms.window
+        known = known + torch.zeros(B * N, P, 3, dtype=dt, device=dev).index_put(
+            (lw.idx,), lw.s[:, None] * _window_integral(rig, lw, ltc_window, rad)).reshape(B, N, P, 3).permute(0, 2, 1, 3)
+    if terms.block is not None:
+        cp = lbar.permute(0, 3, 1, 2).reshape(B * blocks * blocks, P, 3)[terms.block]  # (B N, P, 3)
+        spec = (cp * terms.spec_weight[:, None]).reshape(B, N, P, 3)
+        known = known + (spec * terms.spec_ff.reshape(B, N, 1, 1)).permute(0, 2, 1, 3)
+    texel = torch.cat([terms.m_entries, terms.kdd, spec.reshape(B, N, 3 * P), *terms.extra], -1)
     return ControlVariate(block_radiance=lbar, texel=texel,
-                          known=known.permute(0, 1, 3, 2).reshape(B, P, 3, H, W), lobe_grid=lobe_grid)
+                          known=known.permute(0, 1, 3, 2).reshape(B, P, 3, H, W), lobe_grid=terms.lobe_grid)

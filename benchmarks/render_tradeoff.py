@@ -40,8 +40,9 @@ import torch
 import mitsvbrdf as ms
 from mitsvbrdf.demo import DEFAULT_MATERIAL
 from mitsvbrdf.patterns import colorgrad, monograd, random, step_edges
+from mitsvbrdf.render.control_variate import LAST_MATERIALS
 from estimators import DEFAULT, ESTIMATORS, estimator_rigs
-from report import write_report
+from report import machine_load, write_report
 
 ROOT = Path(__file__).resolve().parent.parent
 SPPS = (1, 4, 16, 64, 256)
@@ -104,11 +105,15 @@ def rel_rmse(img: torch.Tensor, ref: torch.Tensor) -> float:
 
 
 def timed(fn, *args, repeats: int = 3) -> float:
-    """Seconds of one call after a warm-up call (kernels compiled, caches filled): the fastest of
-    ``repeats``, since other work on a shared machine only ever adds time."""
+    """Seconds of one call after a warm-up call (kernels compiled, geometry caches filled): the
+    fastest of ``repeats``, since other work on a shared machine only ever adds time. Each call
+    starts without the last materials' control-variate terms, as a first capture of new
+    materials does (a second capture of the same materials reuses them; mitsuba_speed.py times
+    that too)."""
     fn(*args[:-1], 0)
     best = math.inf
     for _ in range(repeats):
+        LAST_MATERIALS.clear()
         t0 = time.perf_counter()
         fn(*args)
         best = min(best, time.perf_counter() - t0)
@@ -178,7 +183,7 @@ def procedural_study(rigs: dict[str, ms.Rig], n: int, size: int, spps) -> tuple[
              f"`generate({n}, size={size}, seed=123)` under MonoGrad, ColorGrad and the shipped networks' adaptive "
              f"patterns (L_0 + 4 predicted per material, from a reference-rendered I_0); relative RMSE against the "
              f"reference per pattern group / material; time for the batch of {n} materials under 5 patterns "
-             f"({torch.get_num_threads()} threads).", "",
+             f"({torch.get_num_threads()} threads). {machine_load()}", "",
              "| estimator | spp | time (s) | median | worst | " + " | ".join(keys) + " |",
              "|---|---:|---:|---:|---:|" + "---:|" * len(keys)]
     lines += [f"| {r['estimator']} | {r['spp']} | {r['seconds_batch']} | {r['median']:.4f} | {r['worst']:.4f} | "
@@ -239,7 +244,8 @@ def main() -> None:
              f"5 random + 4 step-edge patterns, ks = 0.3, the example's normal map; 'tilt=70' replaces it by normals "
              f"tilted 70 degrees, near-grazing views) and CPU time for one {args.time_size}x{args.time_size} material "
              f"under 5 patterns ({torch.get_num_threads()} threads), at roughness 0.3 and, for the narrow lobes "
-             f"(r < {NARROW_BELOW:g}: the window term's range), at 0.1. Mitsuba rows are estimator-spp.", "",
+             f"(r < {NARROW_BELOW:g}: the window term's range), at 0.1. Mitsuba rows are estimator-spp. "
+             f"{machine_load()}", "",
              "| method | time (s) | time, r=0.1 (s) | " + " | ".join(keys) + " |", "|---|---:|---:|" + "---:|" * len(keys)]
     lines += [f"| {r['method']} | {r['seconds_per_material_5_patterns']} | {r['seconds_narrow']} | " +
               " | ".join(f"{r[k]:.4f}" for k in keys) + " |" for r in rows]

@@ -19,6 +19,15 @@ def write_report(out_dir: Path, stem: str, title: str, script: str, text: str, r
     write_csv(out_dir / f"{stem}.csv", rows)
 
 
+def machine_load() -> str:
+    """A sentence for a timing table: the 1-minute load average against the core count. Timings
+    taken beside other work (a training run, tests) are inflated, and by different factors for
+    different methods; the sentence lets a reader tell such a run from a quiet one."""
+    load, cores = os.getloadavg()[0], os.cpu_count() or 1
+    busy = " (busy: other work shared the cores, so the times are inflated)" if load > 0.5 * cores else ""
+    return f"Load average over the last minute when the timings ended: {load:.2f} on {cores} cores{busy}."
+
+
 def write_csv(path: Path, rows: list[dict]) -> None:
     """``rows`` (dicts with the same keys) as a CSV file with a header line."""
     with open(path, "w", newline="") as f:

@@ -258,7 +258,8 @@ class _LobeWindow:
     """The window term's material part at texels ``idx`` (n,) of the B N: each window's row in
     the table of w x w patches of its material's cells (n,) (:func:`_window_integral`), its first
     cell row and column (n, 2), omega_c (n, w^2), omega_c E_c (n, w^2), the LTC's integral over the
-    whole window (n,), horizon-clipped (what the one-radiance term leaves out), and S there (n, 3)."""
+    whole window (n,), horizon-clipped (what the one-radiance term leaves out; 0 where that term
+    is off), and S there (n, 3)."""
 
     idx: Tensor
     patch: Tensor
@@ -270,10 +271,10 @@ class _LobeWindow:
 
 
 def _lobe_window(rig: Rig, w: int, frame: Tensor, m_inv: Tensor, x: Tensor, peak_uv: Tensor,
-                 where: Tensor) -> _LobeWindow:
+                 where: Tensor, one_radiance: Tensor) -> _LobeWindow:
     """The window term's material part (module docstring) where ``where`` (B N,) is true: frames
     and M^-1 (B N, 3, 3), texel positions ``x`` (N, 3), ``peak_uv`` (B N, 2) where the lobe's peak
-    meets the LCD. In chunks of texels, as :func:`_lobe_grid` (at 128 px and w = 8 in one pass it
+    meets the LCD, ``one_radiance`` (B N,) where the one-radiance term is on. In chunks of texels, as :func:`_lobe_grid` (at 128 px and w = 8 in one pass it
     took three times as long)."""
     h, wc = rig.lcd_cells
     if not 1 <= w <= min(h, wc):
@@ -281,7 +282,8 @@ def _lobe_window(rig: Rig, w: int, frame: Tensor, m_inv: Tensor, x: Tensor, peak
     idx = where.nonzero().squeeze(1)
     dev, dt = frame.device, frame.dtype
     step = max(1, CHUNK_ELEMENTS // (3 * (w + 1) ** 2))
-    parts = [_window_chunk(rig, w, frame, m_inv, x, peak_uv, idx[i:i + step]) for i in range(0, idx.numel(), step)]
+    parts = [_window_chunk(rig, w, frame, m_inv, x, peak_uv, idx[i:i + step], one_radiance)
+             for i in range(0, idx.numel(), step)]
     if not parts:
         return _LobeWindow(idx, torch.zeros(0, dtype=torch.long, device=dev), torch.zeros(0, 2, dtype=dt, device=dev),
                            *(torch.zeros(0, w * w, dtype=dt, device=dev) for _ in range(2)),
@@ -290,7 +292,7 @@ def _lobe_window(rig: Rig, w: int, frame: Tensor, m_inv: Tensor, x: Tensor, peak
 
 
 def _window_chunk(rig: Rig, w: int, frame: Tensor, m_inv: Tensor, x: Tensor, peak_uv: Tensor,
-                  idx: Tensor) -> tuple[Tensor, Tensor, Tensor, Tensor, Tensor]:
+                  idx: Tensor, one_radiance: Tensor) -> tuple[Tensor, Tensor, Tensor, Tensor, Tensor]:
     """:func:`_lobe_window`'s patch, origin, omega, weight and outer at texels ``idx`` (n,)."""
     h, wc = rig.lcd_cells
     n, N = idx.numel(), x.shape[0]
@@ -324,8 +326,11 @@ def _window_chunk(rig: Rig, w: int, frame: Tensor, m_inv: Tensor, x: Tensor, pea
     omega = omega.reshape(n, -1)
     places = (h - w + 1) * (wc - w + 1)
     patch = (idx // N) * places + row0.long() * (wc - w + 1) + col0.long()
+    # the window's clipped rim only where the one-radiance term needs it (roughness >= ltc_min_roughness)
     rim = torch.stack([warped[:, 0, 0], warped[:, 0, -1], warped[:, -1, -1], warped[:, -1, 0]], 1)
-    outer = clipped_polygon_vector_form_factor(rim)[:, 2].abs()
+    needed = one_radiance[idx].nonzero().squeeze(1)
+    outer = torch.zeros(n, dtype=dt, device=dev).index_put(
+        (needed,), clipped_polygon_vector_form_factor(rim[needed])[:, 2].abs())
     return patch, torch.stack([row0, col0], -1), omega, omega * e.reshape(n, -1), outer
 
 
@@ -469,7 +474,7 @@ def _material_terms(svbrdf, rig: Rig, mode: str, blocks: int, ltc_min_roughness:
         use = use & ~cells[:, 0]  # where the one-radiance term is left
         if ltc_window:
             win = fits & (r.reshape(-1) >= ltc_window_min_roughness) & ~cells[:, 0]
-            lw = _lobe_window(rig, ltc_window, frame, m_inv, x, peak_uv, win)
+            lw = _lobe_window(rig, ltc_window, frame, m_inv, x, peak_uv, win, use)
             s_win = torch.where(win[:, None], s_all, 0.0)
             lw.s = s_win[lw.idx]
             # Texels without a window get one off the LCD, so that no direction falls in it.

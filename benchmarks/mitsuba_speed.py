@@ -28,7 +28,7 @@ import mitsvbrdf as ms
 from mitsvbrdf.patterns import monograd
 from mitsvbrdf.render.control_variate import LAST_MATERIALS
 from estimators import DEFAULT, estimator_rigs
-from report import machine_load, write_report
+from report import OtherLoad, write_report
 
 ROOT = Path(__file__).resolve().parent.parent
 
@@ -70,6 +70,7 @@ def main() -> None:
     ap.add_argument("--quick", action="store_true")
     ap.add_argument("--out", type=Path, default=ROOT / "docs" / "benchmarks")
     args = ap.parse_args()
+    load = OtherLoad()
     if args.quick:
         args.size, args.spp, args.batches, args.repeats = 64, [1, 16], [1], 1
     device = torch.device(args.device)
@@ -113,7 +114,7 @@ def main() -> None:
             print(rows[-1], flush=True)
     name = torch.cuda.get_device_name(0) if device.type == "cuda" else f"CPU, {torch.get_num_threads()} threads"
     lines = [f"Mitsuba renderer (`method=\"mitsuba\"`) on {name}, {args.size}x{args.size}, P = 5 patterns. "
-             f"{machine_load()}", "",
+             f"{load.sentence()}", "",
              "| estimator | B | spp | forward (ms) | forward, same maps again (ms) | forward+backward (ms) | "
              "rel. RMSE vs reference (B=1) |",
              "|---|---:|---:|---:|---:|---:|---:|"]

@@ -42,7 +42,7 @@ from mitsvbrdf.demo import DEFAULT_MATERIAL
 from mitsvbrdf.patterns import colorgrad, monograd, random, step_edges
 from mitsvbrdf.render.control_variate import LAST_MATERIALS
 from estimators import DEFAULT, ESTIMATORS, estimator_rigs
-from report import machine_load, write_report
+from report import OtherLoad, write_report
 
 ROOT = Path(__file__).resolve().parent.parent
 SPPS = (1, 4, 16, 64, 256)
@@ -154,6 +154,7 @@ def at_time(rows: list[dict], est: str, key: str, seconds: float, time_column: s
 
 def procedural_study(rigs: dict[str, ms.Rig], n: int, size: int, spps) -> tuple[list[dict], list[str]]:
     """Study 2: per estimator and spp, relative RMSE per (pattern group, material) and time."""
+    load = OtherLoad()
     from mitsvbrdf.data.procedural import generate
     from mitsvbrdf.acquisition import DEFAULT_NETWORKS, load_adaptive
 
@@ -183,7 +184,7 @@ def procedural_study(rigs: dict[str, ms.Rig], n: int, size: int, spps) -> tuple[
              f"`generate({n}, size={size}, seed=123)` under MonoGrad, ColorGrad and the shipped networks' adaptive "
              f"patterns (L_0 + 4 predicted per material, from a reference-rendered I_0); relative RMSE against the "
              f"reference per pattern group / material; time for the batch of {n} materials under 5 patterns "
-             f"({torch.get_num_threads()} threads). {machine_load()}", "",
+             f"({torch.get_num_threads()} threads). {load.sentence()}", "",
              "| estimator | spp | time (s) | median | worst | " + " | ".join(keys) + " |",
              "|---|---:|---:|---:|---:|" + "---:|" * len(keys)]
     lines += [f"| {r['estimator']} | {r['spp']} | {r['seconds_batch']} | {r['median']:.4f} | {r['worst']:.4f} | "
@@ -210,6 +211,7 @@ def main() -> None:
     ap.add_argument("--quick", action="store_true")
     ap.add_argument("--out", type=Path, default=ROOT / "docs" / "benchmarks")
     args = ap.parse_args()
+    load = OtherLoad()
     cases = [(r, None) for r in (0.01, 0.05, 0.1, 0.3, 0.6, 1.0)] + [(0.3, 70.0)]
     spps = SPPS
     if args.quick:
@@ -245,7 +247,7 @@ def main() -> None:
              f"tilted 70 degrees, near-grazing views) and CPU time for one {args.time_size}x{args.time_size} material "
              f"under 5 patterns ({torch.get_num_threads()} threads), at roughness 0.3 and, for the narrow lobes "
              f"(r < {NARROW_BELOW:g}: the window term's range), at 0.1. Mitsuba rows are estimator-spp. "
-             f"{machine_load()}", "",
+             f"{load.sentence()}", "",
              "| method | time (s) | time, r=0.1 (s) | " + " | ".join(keys) + " |", "|---|---:|---:|" + "---:|" * len(keys)]
     lines += [f"| {r['method']} | {r['seconds_per_material_5_patterns']} | {r['seconds_narrow']} | " +
               " | ".join(f"{r[k]:.4f}" for k in keys) + " |" for r in rows]

@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import csv
 import os
+import time
 from pathlib import Path
 
 #: The 4 sample materials (Deschaintre-format strips): $MITSVBRDF_SAMPLES, else the checkout's
@@ -19,13 +20,36 @@ def write_report(out_dir: Path, stem: str, title: str, script: str, text: str, r
     write_csv(out_dir / f"{stem}.csv", rows)
 
 
-def machine_load() -> str:
-    """A sentence for a timing table: the 1-minute load average against the core count. Timings
-    taken beside other work (a training run, tests) are inflated, and by different factors for
-    different methods; the sentence lets a reader tell such a run from a quiet one."""
-    load, cores = os.getloadavg()[0], os.cpu_count() or 1
-    busy = " (busy: other work shared the cores, so the times are inflated)" if load > 0.5 * cores else ""
-    return f"Load average over the last minute when the timings ended: {load:.2f} on {cores} cores{busy}."
+class OtherLoad:
+    """How many cores other processes kept busy since this object was made (Linux: /proc/stat's
+    busy time less this process's own CPU time, over the wall time). Timings taken beside other
+    work (a training run, tests) are inflated, and by different factors for different methods;
+    the sentence lets a reader tell such a run from a quiet one. (The load average is no measure
+    here: it counts the benchmark's own threads.)"""
+
+    def __init__(self):
+        self.start = self._sample()
+
+    @staticmethod
+    def _sample() -> tuple[float, float, float] | None:
+        try:
+            with open("/proc/stat") as f:
+                ticks = [int(v) for v in f.readline().split()[1:9]]
+        except (OSError, ValueError):
+            return None
+        own = os.times()
+        busy = (sum(ticks) - ticks[3] - ticks[4]) / os.sysconf("SC_CLK_TCK")  # all but idle and iowait
+        return time.monotonic(), busy, own.user + own.system
+
+    def sentence(self) -> str:
+        end = self._sample()
+        if self.start is None or end is None:
+            return "Other work on the machine meanwhile: not measured (no /proc/stat)."
+        wall = max(end[0] - self.start[0], 1e-9)
+        other = max(0.0, (end[1] - self.start[1]) - (end[2] - self.start[2])) / wall
+        cores = os.cpu_count() or 1
+        busy = " (busy: other work shared the cores, so the times are inflated)" if other > 0.25 * cores else ""
+        return f"Other processes kept {other:.2f} of {cores} cores busy on average while this ran{busy}."
 
 
 def write_csv(path: Path, rows: list[dict]) -> None:

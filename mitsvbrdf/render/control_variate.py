@@ -274,8 +274,8 @@ def _lobe_window(rig: Rig, w: int, frame: Tensor, m_inv: Tensor, x: Tensor, peak
                  where: Tensor, one_radiance: Tensor) -> _LobeWindow:
     """The window term's material part (module docstring) where ``where`` (B N,) is true: frames
     and M^-1 (B N, 3, 3), texel positions ``x`` (N, 3), ``peak_uv`` (B N, 2) where the lobe's peak
-    meets the LCD, ``one_radiance`` (B N,) where the one-radiance term is on. In chunks of texels, as :func:`_lobe_grid` (at 128 px and w = 8 in one pass it
-    took three times as long)."""
+    meets the LCD, ``one_radiance`` (B N,) where the one-radiance term is on. In chunks of texels,
+    as :func:`_lobe_grid` (at 128 px and w = 8 in one pass it took three times as long)."""
     h, wc = rig.lcd_cells
     if not 1 <= w <= min(h, wc):
         raise ValueError(f"ltc_window = {w} must lie in [1, {min(h, wc)}] (the LCD has {h} x {wc} cells)")

@@ -486,16 +486,20 @@ def _material_terms(svbrdf, rig: Rig, mode: str, blocks: int, ltc_min_roughness:
             # the one-radiance term stays where it is on, outside the window
             window_ff = torch.zeros(B * N, dtype=dt, device=dev).index_put((lw.idx,), lw.outer)
     e = _warped_lcd_form_factor(frame, m_inv, corners, x, use)
-    terms.spec_ff = e if window_ff is None else e - torch.where(use, window_ff, 0.0)
+    terms.spec_ff = e if window_ff is None else e - window_ff  # both 0 where the one-radiance term is off
     terms.spec_weight = s * decay[:, None]
     return terms
+
+
+def _maps(svbrdf) -> tuple[Tensor, ...]:
+    return svbrdf.normal, svbrdf.diffuse, svbrdf.roughness, svbrdf.specular
 
 
 def _maps_version(svbrdf) -> tuple | None:
     """The identity and in-place version of the four maps, or None where the terms of this call
     must not outlive it (maps that require gradients need this call's graph; inference tensors
     have no version counter)."""
-    maps = (svbrdf.normal, svbrdf.diffuse, svbrdf.roughness, svbrdf.specular)
+    maps = _maps(svbrdf)
     if any(m.requires_grad or m.is_inference() for m in maps):
         return None
     return tuple((id(m), m._version) for m in maps)
@@ -524,7 +528,7 @@ class _LastMaterials:
             return self.terms
         self.clear()  # the old entry's memory first: at 256 px its lobe grid is ~150 MB a material
         self.terms = compute()
-        self.key, self.maps = key, (svbrdf.normal, svbrdf.diffuse, svbrdf.roughness, svbrdf.specular)
+        self.key, self.maps = key, _maps(svbrdf)
         return self.terms
 
 

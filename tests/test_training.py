@@ -273,6 +273,30 @@ def test_warm_start_from_a_file_without_the_stages_networks_is_a_clear_error(rig
         _stage2(rig).warm_start({"l0": records["l0"]})
 
 
+def _exported_init(tmp_path) -> Path:
+    """An init export whose L_0 is not the fresh pattern (uniform 0.9) and whose initializer is trained."""
+    train(tiny("init", tmp_path / "first", steps=2, initializer_width=4, extra=["train.lr=0.3"]), progress=False)
+    return tmp_path / "first" / "networks.pt"
+
+
+def test_init_with_frozen_l0_continues_the_initializer_under_the_warm_starts_pattern(tmp_path):
+    export = torch.load(_exported_init(tmp_path), weights_only=True)
+    train(tiny("init", tmp_path / "cont", steps=2, initializer_width=4, train_l0=False,
+                         extra=[f'pretrained.warm_start="{tmp_path / "first" / "networks.pt"}"']), progress=False)
+    after = torch.load(tmp_path / "cont" / "networks.pt", weights_only=True)
+    assert torch.equal(after["l0"]["state"]["logits"], export["l0"]["state"]["logits"])
+    assert not torch.equal(after["initializer"]["state"]["net.decoder.ending.weight"],
+                           export["initializer"]["state"]["net.decoder.ending.weight"])
+
+
+def test_init_trains_l0_by_default_after_a_warm_start(tmp_path):
+    export = torch.load(_exported_init(tmp_path), weights_only=True)
+    train(tiny("init", tmp_path / "cont", steps=2, initializer_width=4,
+               extra=[f'pretrained.warm_start="{tmp_path / "first" / "networks.pt"}"']), progress=False)
+    after = torch.load(tmp_path / "cont" / "networks.pt", weights_only=True)
+    assert not torch.equal(after["l0"]["state"]["logits"], export["l0"]["state"]["logits"])
+
+
 def test_missing_warm_start_file_is_a_clear_error(tmp_path):
     with pytest.raises(TrainingError, match="warm_start"):
         Trainer(tiny("fixed", tmp_path, extra=[f'pretrained.warm_start="{tmp_path / "none.pt"}"'], svbrdf_width=4),

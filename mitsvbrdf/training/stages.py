@@ -140,6 +140,10 @@ def _generator(seed: int, device) -> torch.Generator:
 class InitModel:
     initializer_width: int = 16
     initializer_blocks: list[int] = field(default_factory=lambda: [1, 1, 1])
+    # false: L_0 keeps its starting values (a warm start's pattern, else uniform 0.9) and only the
+    # initializer trains; continuing the initializer of shipped networks this way leaves I_0, and
+    # so every later stage's input, as those networks were trained with
+    train_l0: bool = True
 
 
 @dataclass
@@ -153,8 +157,12 @@ class InitStage(TrainingStage):
 
     def __init__(self, model: InitModel, loss: InitLoss, render_settings: RenderSettings, rig: Rig):
         super().__init__(model, loss, render_settings, rig)
-        self.nets["l0"] = LearnedPattern(rig.lcd_cells)
+        self.nets["l0"] = LearnedPattern(rig.lcd_cells).requires_grad_(model.train_l0)
         self.nets["initializer"] = Initializer(model.initializer_width, tuple(model.initializer_blocks))
+
+    def warm_start(self, records: dict[str, dict]) -> None:
+        super().warm_start(records)
+        self.nets["l0"].requires_grad_(self.model_cfg.train_l0)
 
     def forward(self, batch: SVBRDF, seed: int) -> dict[str, Tensor]:
         g = _generator(seed, batch.device)

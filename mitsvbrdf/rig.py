@@ -3,6 +3,8 @@
 Frames and units (docs/conventions.md): metres; the sample is the square ``|x|, |y| <= size/2`` on the
 plane z = 0 with normal +z; texel (i, j) of an H x W map is the point
 ``x = (j + 1/2) / W * size - size/2``, ``y = size/2 - (i + 1/2) / H * size`` (row 0 at the top).
+A window of the sample (:meth:`Rig.window`, for crops of a large material that keep their place in
+the rig) is a smaller square centred at ``(cx, cy)``; its texels are then shifted by that centre.
 The LCD is a rectangle with corners ``c0..c3`` (Mitsuba rectangle local (-1,-1), (1,-1), (1,1),
 (-1,1)); pattern cell (0, 0) sits at corner 0, columns run c0 -> c1 (coordinate u in [0, 1]) and
 rows c0 -> c3 (coordinate v in [0, 1]). Its normal points towards the sample, the side it emits
@@ -166,6 +168,9 @@ class Rig:
     sample_size: float  # metres, side of the square sample
     display: DisplayModel
     source: str = "<memory>"
+    #: (x, y) metres of the sample square's centre: the origin for a scene file's sample, elsewhere
+    #: for a window of it (:meth:`window`)
+    sample_centre: tuple[float, float] = (0.0, 0.0)
 
     # ---- construction -------------------------------------------------------------------------
 
@@ -217,6 +222,31 @@ class Rig:
     def with_display(self, **changes: object) -> "Rig":
         """A copy with display-model fields replaced (e.g. ``decay_cos_power=2.0``)."""
         return dataclasses.replace(self, display=dataclasses.replace(self.display, **changes))
+
+    def window(self, grid: int, top: int, left: int, size: int) -> "Rig":
+        """The rig of a ``size`` x ``size`` window of texels, at row ``top`` and column ``left`` of a
+        ``grid`` x ``grid`` map of this rig's sample: the same camera, LCD and display, the sample
+        shrunk to the window's square and centred on it. Rendered with it, the window's maps give
+        the window's part of the whole map's images (each texel keeps its place, and so its light
+        and view directions), which is what training on crops of a large material needs; every
+        renderer and L_pdf take their texel positions from :meth:`surface_points`."""
+        for name, value in (("grid", grid), ("top", top), ("left", left), ("size", size)):
+            if not isinstance(value, (int, np.integer)) or isinstance(value, bool):
+                raise ValueError(f"window {name} must be an integer, got {value!r}")
+        if size < 1 or grid < size or not (0 <= top <= grid - size and 0 <= left <= grid - size):
+            raise ValueError(f"a {size} x {size} window at row {top}, column {left} does not fit a {grid} x {grid} "
+                             "grid (needs 1 <= size <= grid and 0 <= top, left <= grid - size)")
+        s = self.sample_size / grid  # one texel's side
+        cx, cy = self.sample_centre
+        return dataclasses.replace(self, sample_size=s * size,
+                                   sample_centre=(cx - self.sample_size / 2 + (left + size / 2) * s,
+                                                  cy + self.sample_size / 2 - (top + size / 2) * s))
+
+    def sample_to_world(self) -> np.ndarray:
+        """(4, 4) the sample rectangle's Mitsuba transform: local [-1, 1]^2 onto the sample square."""
+        m = np.diag([self.sample_size / 2, self.sample_size / 2, 1.0, 1.0])
+        m[:2, 3] = self.sample_centre
+        return m
 
     def _check_geometry(self) -> None:
         c = self.corners_np()
@@ -297,8 +327,9 @@ class Rig:
         """(H, W, 3) texel-centre positions on the sample (z = 0), metres."""
         h, w = texel_grid(resolution)
         s = self.sample_size
-        x = (torch.arange(w, dtype=torch.float64, device=device) + 0.5) / w * s - s / 2
-        y = s / 2 - (torch.arange(h, dtype=torch.float64, device=device) + 0.5) / h * s
+        cx, cy = self.sample_centre
+        x = cx + (torch.arange(w, dtype=torch.float64, device=device) + 0.5) / w * s - s / 2
+        y = cy + s / 2 - (torch.arange(h, dtype=torch.float64, device=device) + 0.5) / h * s
         yy, xx = torch.meshgrid(y, x, indexing="ij")
         return torch.stack([xx, yy, torch.zeros_like(xx)], dim=-1).float()
 

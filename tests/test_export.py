@@ -33,6 +33,14 @@ def test_mitsuba_scene_carries_the_maps_exactly(mi, tmp_path, rig):
         np.testing.assert_array_equal(got, want, err_msg=name)
 
 
+@pytest.mark.parametrize("window", [None, (16, 2, 9, 4)], ids=["whole", "window"])
+def test_mitsuba_scene_places_the_sample_where_the_rig_has_it(mi, tmp_path, rig, window):
+    r = rig if window is None else rig.window(*window)
+    scene = mi.load_file(str(export_mitsuba_scene(textured_material(4), tmp_path, r, resolution=16, spp=4)))
+    got = np.array(mi.traverse(scene)["sample.to_world"].matrix.numpy()).reshape(4, 4)
+    np.testing.assert_allclose(got, r.sample_to_world(), rtol=1e-6, atol=1e-9)
+
+
 def test_mitsuba_scene_renders_the_lit_material(mi, tmp_path, rig):
     scene = mi.load_file(str(export_mitsuba_scene(textured_material(8), tmp_path, rig, resolution=16, spp=4)))
     img = np.array(mi.render(scene))

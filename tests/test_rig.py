@@ -237,3 +237,40 @@ def test_lcd_plugin_refuses_the_same_display_models(params, words):
     mi = mitsvbrdf_plugins.register("llvm_ad_rgb")
     with pytest.raises(Exception, match=words):
         mi.load_dict({"type": "rectangle", "emitter": {"type": "lcd", **params}})
+
+
+# ---- windows of the sample (crops that keep their place in the rig) ------------------------------
+
+
+def test_a_windows_texels_are_that_crop_of_the_whole_grid(rig):
+    whole = rig.surface_points(16)
+    torch.testing.assert_close(rig.window(16, 4, 8, 8).surface_points(8), whole[4:12, 8:16], rtol=0, atol=1e-9)
+
+
+def test_a_window_of_a_window_is_the_crop_of_the_crop(rig):
+    inner = rig.window(16, 4, 8, 8).window(8, 2, 1, 4)
+    torch.testing.assert_close(inner.surface_points(4), rig.surface_points(16)[6:10, 9:13], rtol=0, atol=1e-9)
+
+
+def test_the_window_of_the_whole_grid_is_the_rig_itself(rig):
+    w = rig.window(16, 0, 0, 16)
+    np.testing.assert_allclose(w.sample_to_world(), rig.sample_to_world(), rtol=0, atol=1e-15)
+    assert w.sample_centre == (0.0, 0.0) and w.sample_size == rig.sample_size
+
+
+def test_a_window_keeps_camera_lcd_and_display(rig):
+    w = rig.window(8, 1, 2, 4)
+    assert w.display is rig.display and w.lcd_cells == rig.lcd_cells and w.source == rig.source
+    np.testing.assert_array_equal(w.lcd_to_world, rig.lcd_to_world)
+    np.testing.assert_array_equal(w.camera_to_world, rig.camera_to_world)
+
+
+def test_the_scene_files_sample_transform_is_the_rigs(rig):
+    np.testing.assert_allclose(rig.sample_to_world(), np.diag([rig.sample_size / 2] * 2 + [1.0, 1.0]), atol=1e-15)
+
+
+@pytest.mark.parametrize("args", [(16, 9, 0, 8), (16, 0, -1, 8), (16, 0, 0, 17), (16, 0, 0, 0), (16, 0.5, 0, 8),
+                                  (16, 0, 0, True)])
+def test_a_window_outside_the_grid_is_a_clear_error(rig, args):
+    with pytest.raises(ValueError, match="window"):
+        rig.window(*args)

@@ -18,6 +18,7 @@ from __future__ import annotations
 
 from pathlib import Path
 
+import numpy as np
 import torch
 from torch import Tensor
 
@@ -53,6 +54,16 @@ def load_scene(source: str, variant: str):
     return _SCENES[key]
 
 
+def _place_sample(params, rig: Rig) -> None:
+    """Move the loaded scene's sample rectangle where ``rig`` has it (a window of the sample,
+    :meth:`Rig.window`, or back to the file's); untouched, and no scene update, when it is there."""
+    want = rig.sample_to_world()
+    have = params["sample.to_world"]
+    if not np.array_equal(np.array(have.matrix.numpy(), dtype=np.float32).reshape(4, 4), want.astype(np.float32)):
+        params["sample.to_world"] = type(have)(want.tolist())
+        params.update()
+
+
 def render_mitsuba(svbrdf, patterns: Tensor, rig: Rig, *, spp: int = 64, seed: int = 0) -> Tensor:
     """Render B materials under P patterns with the scene's plugins; see the module docstring.
 
@@ -79,6 +90,7 @@ def render_mitsuba(svbrdf, patterns: Tensor, rig: Rig, *, spp: int = 64, seed: i
     if not Path(rig.source).is_file():
         raise ValueError(f"method='mitsuba' needs a rig read from a scene file, got source {rig.source!r}")
     mi, scene, params, integrator = load_scene(str(rig.source), _variant_for(device))
+    _place_sample(params, rig)
     import drjit as dr  # after load_scene: the backend must choose libLLVM before drjit loads
 
     B = svbrdf.batch_size

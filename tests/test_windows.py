@@ -1,0 +1,61 @@
+"""A window of the sample (``Rig.window``) renders as the crop of the whole material, with every
+renderer: training on crops of a large material needs each texel to keep its place in the rig,
+and so its light and view directions."""
+
+import pytest
+import torch
+
+import mitsvbrdf as ms
+from mitsvbrdf import patterns as pt
+from mitsvbrdf.data.augment import crop_maps
+
+from conftest import textured_material
+
+SIZE, TOP, LEFT, CROP = 16, 2, 8, 8
+PATTERNS = torch.cat([pt.monograd()[1:3], pt.random(n=1, seed=4)])
+
+
+def _crop(t):
+    return t[..., TOP:TOP + CROP, LEFT:LEFT + CROP]
+
+
+@pytest.fixture(scope="module")
+def whole():
+    return textured_material(SIZE, seed=5, roughness=(0.05, 0.5))
+
+
+@pytest.fixture(scope="module")
+def window(whole):
+    return ms.SVBRDF(**crop_maps(whole.maps(), TOP, LEFT, CROP))
+
+
+# Per-texel quadrature in float32: the same sums in another order at most, so a few float32 ulps
+# over the ~10^3 terms of a texel.
+TOL = dict(rtol=1e-5, atol=1e-7)
+
+
+def test_the_reference_renders_a_window_as_the_crop_of_the_whole(rig, whole, window):
+    got = ms.render(window, PATTERNS, rig.window(SIZE, TOP, LEFT, CROP))
+    torch.testing.assert_close(got, _crop(ms.render(whole, PATTERNS, rig)), **TOL)
+
+
+@pytest.mark.parametrize("mode", ["exact", "prefiltered"])
+def test_ltc_renders_a_window_as_the_crop_of_the_whole(rig, whole, window, mode):
+    got = ms.render(window, PATTERNS, rig.window(SIZE, TOP, LEFT, CROP), method="ltc", mode=mode)
+    torch.testing.assert_close(got, _crop(ms.render(whole, PATTERNS, rig, method="ltc", mode=mode)), **TOL)
+
+
+def test_mitsuba_renders_a_window_where_the_rig_has_it(rig, window):
+    # The plugins' texels come from the loaded scene's sample rectangle: unless it is moved to the
+    # window, they are the centre of the sample, lit from elsewhere (several times this tolerance,
+    # the repository's 1024-spp agreement criterion).
+    win = rig.window(SIZE, TOP, LEFT, CROP)
+    got = ms.render(window, PATTERNS, win, method="mitsuba", spp=1024, seed=1)
+    want = ms.render(window, PATTERNS, win)
+    assert ((got - want).square().mean().sqrt() / want.square().mean().sqrt()).item() < 0.02
+
+
+def test_mitsuba_puts_the_sample_back_after_a_window(rig, whole, window):
+    before = ms.render(whole, PATTERNS, rig, method="mitsuba", spp=4, seed=3)
+    ms.render(window, PATTERNS, rig.window(SIZE, TOP, LEFT, CROP), method="mitsuba", spp=4, seed=3)
+    torch.testing.assert_close(ms.render(whole, PATTERNS, rig, method="mitsuba", spp=4, seed=3), before, rtol=0, atol=0)

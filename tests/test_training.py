@@ -104,6 +104,34 @@ def test_the_bump_range_reaches_the_procedural_dataset():
     assert make_dataset(cfg).bump == (1.0, 4.0)
 
 
+@pytest.mark.parametrize("crop_from", [32, 20, -8])
+def test_windows_from_materials_not_larger_than_them_are_refused(crop_from):
+    with pytest.raises(ConfigError, match=r"data\.crop_from: must be"):
+        load_config(ROOT / "train" / "stage2-small.toml", ["data.size=32", f"data.crop_from={crop_from}"])
+
+
+def test_each_step_trains_on_a_window_of_the_larger_materials_rendered_where_it_sits(tmp_path, rig):
+    from mitsvbrdf.data.datasets import collate_svbrdf
+    from mitsvbrdf.training.trainer import step_seed, window_of_step
+
+    t = Trainer(tiny("init", tmp_path / "run", extra=["data.size=16", "data.crop_from=32"]), progress=False)
+    got = t.batch(3)
+    top, left = window_of_step(32, 16, step_seed(0, 3, 0))
+    whole = collate_svbrdf([t.dataset[i] for i in (6, 7)])  # step 3 of batch 2
+    assert whole.resolution == (32, 32) and got.resolution == (16, 16)
+    torch.testing.assert_close(got.normal, whole.normal[..., top:top + 16, left:left + 16], rtol=0, atol=0)
+    torch.testing.assert_close(t.stage.rig.surface_points(16), rig.surface_points(32)[top:top + 16, left:left + 16],
+                               rtol=0, atol=1e-9)
+    assert len({window_of_step(32, 16, step_seed(0, s, 0)) for s in range(8)}) > 1  # the window moves
+
+
+def test_networks_trained_on_windows_record_the_grid_they_were_cut_from(tmp_path):
+    sets = ["train.steps=1", "train.batch=2", "render.spp=1", "data.size=16", "data.crop_from=32",
+            f'out="{tmp_path}"', f'pretrained.networks="{ROOT / "mitsvbrdf" / "weights" / "networks.pt"}"']
+    train(load_config(ROOT / "train" / "stage2-small.toml", sets), progress=False)
+    assert torch.load(tmp_path / "networks.pt", weights_only=True)["acquisition"]["resolution"] == 32
+
+
 def test_missing_or_unknown_stage_is_refused():
     with pytest.raises(ConfigError, match="stage: must be one of"):
         load_config(table={"seed": 1})

@@ -8,7 +8,9 @@ Layout (every key optional except ``stage``; defaults below)::
     scene = ""                    # rig scene file; "": the package's default rig
 
     [data]     source = "procedural" | "strips" | "folders"; root; size; length; families;
-               bump = [lo, hi] (procedural relief multiplier, log-uniform per material)
+               bump = [lo, hi] (procedural relief multiplier, log-uniform per material);
+               crop_from (0: materials at ``size``; N > size: materials at N px, each step's batch
+               a random size x size window of them, rendered where it sits: Rig.window)
     [render]   method = "mitsuba" | "ltc" | "reference"; spp; [render.noise] shot, read, bits
     [model]    the stage's own options (see mitsvbrdf.training.stages: *Model dataclasses)
     [loss]     the stage's loss weights (*Loss dataclasses)
@@ -65,6 +67,11 @@ class DataConfig:
     # procedural relief multiplier range [lo, hi], log-uniform per material ([1, 1]: the
     # generator's own relief); see mitsvbrdf.data.procedural.generate
     bump: list[float] = field(default_factory=lambda: [1.0, 1.0])
+    # 0: the materials are made at ``size``. N > size: they are made (or loaded) at N px and every
+    # step trains on one random size x size window of them, the same for the batch, rendered with
+    # the rig of that window (Rig.window), so each texel keeps its light and view directions: the
+    # networks learn N px texels at the cost of size px steps (crops against reduced materials)
+    crop_from: int = 0
 
 
 @dataclass
@@ -275,6 +282,9 @@ def _check_values(cfg: Config) -> None:
               (cfg.train.log_every >= 1, "train.log_every", ">= 1"),
               (cfg.data.size >= 8 and cfg.data.size % 8 == 0, "data.size", "a positive multiple of 8"),
               (cfg.data.length >= 1, "data.length", ">= 1"),
+              (cfg.data.crop_from == 0 or (cfg.data.crop_from > cfg.data.size and cfg.data.crop_from % 8 == 0),
+               "data.crop_from", "0 (off) or a multiple of 8 larger than data.size (the materials the windows are "
+               "cut from)"),
               (len(cfg.data.bump) == 2 and 0 < cfg.data.bump[0] <= cfg.data.bump[1], "data.bump",
                "a range [lo, hi] with 0 < lo <= hi"),
               (cfg.data.source == "procedural" or cfg.data.bump == [1.0, 1.0], "data.bump",

@@ -29,12 +29,14 @@ import torch
 import torch.distributed as dist
 
 from ..acquisition import SETTINGS_KEY
+from ..data.augment import crop_maps
 from ..data.datasets import MapFolderDataset, ProceduralDataset, StripDataset, collate_svbrdf
 from ..errors import MitsvbrdfError
 from ..nets import network_record
 from ..nets.io import read_network_file
 from ..rig import Rig
 from ..sensor import SensorNoise
+from ..svbrdf import SVBRDF
 from .config import Config, config_table
 from .stages import STAGES, RenderSettings, TrainingStage
 
@@ -112,11 +114,20 @@ def _device(name: str) -> torch.device:
 
 def make_dataset(cfg: Config):
     d = cfg.data
+    size = d.crop_from or d.size  # with windows, the materials they are cut from
     if d.source == "procedural":
-        return ProceduralDataset(d.length, d.size, seed=cfg.seed, families=d.families or None, bump=tuple(d.bump))
+        return ProceduralDataset(d.length, size, seed=cfg.seed, families=d.families or None, bump=tuple(d.bump))
     if d.source == "strips":
-        return StripDataset(d.root, crop=d.size)
-    return MapFolderDataset(d.root, crop=d.size)
+        return StripDataset(d.root, crop=size)
+    return MapFolderDataset(d.root, crop=size)
+
+
+def window_of_step(grid: int, size: int, seed: int) -> tuple[int, int]:
+    """(top, left) of a step's size x size window of grid x grid materials (``data.crop_from``),
+    uniform over the places it fits, drawn from the step's seed."""
+    g = torch.Generator().manual_seed(seed)
+    top, left = torch.randint(0, grid - size + 1, (2,), generator=g).tolist()
+    return top, left
 
 
 def step_seed(seed: int, step: int, rank: int) -> int:
@@ -154,6 +165,7 @@ class Trainer:
         settings = RenderSettings(cfg.render.method, cfg.render.spp, noise if noise.active else None,
                                   cfg.render.ltc_mode)
         cls = STAGES[cfg.stage]
+        self.rig = rig  # the stage's, unless data.crop_from gives each step a window of it
         self.stage: TrainingStage = cls(cfg.model, cfg.loss, settings, rig)
         if cls.PRETRAINED or cfg.pretrained.warm_start:
             self._load_pretrained()
@@ -274,7 +286,8 @@ class Trainer:
             settings = self.stage.acquisition_settings()
             if settings is not None:  # how an acquisition must use them (L_pdf source and stride, I^spec,
                 # the texel grid they trained on)
-                recs[SETTINGS_KEY] = replace(settings, resolution=self.cfg.data.size).record()
+                # the texel grid the networks learned: with windows, that of the materials they were cut from
+                recs[SETTINGS_KEY] = replace(settings, resolution=self.cfg.data.crop_from or self.cfg.data.size).record()
             tmp = path.with_suffix(".tmp")
             torch.save(recs, tmp)
             os.replace(tmp, path)
@@ -308,14 +321,21 @@ class Trainer:
 
     # -- the loop ---------------------------------------------------------------------------
     def batch(self, step: int):
-        """This rank's share of the materials of ``step`` (on the device)."""
+        """This rank's share of the materials of ``step`` (on the device). With ``data.crop_from``
+        it is the step's window of them, and the stage renders with that window's rig."""
         b = self.cfg.train.batch // self.world
         start = step * self.cfg.train.batch + self.rank * b
         n = len(self.dataset)
         idx = [(start + i) % n for i in range(b)]
         fetch = getattr(self.dataset, "__getitems__", None)
         items = fetch(idx) if fetch else [self.dataset[i] for i in idx]
-        return collate_svbrdf(items).to(self.device)
+        batch = collate_svbrdf(items)
+        d = self.cfg.data
+        if d.crop_from:
+            top, left = window_of_step(d.crop_from, d.size, step_seed(self.cfg.seed, step, self.rank))
+            batch = SVBRDF(**crop_maps(batch.maps(), top, left, d.size))
+            self.stage.rig = self.rig.window(d.crop_from, top, left, d.size)
+        return batch.to(self.device)
 
     def budget_spent(self) -> bool:
         budget = self.cfg.train.time_budget

@@ -132,6 +132,24 @@ def test_networks_trained_on_windows_record_the_grid_they_were_cut_from(tmp_path
     assert torch.load(tmp_path / "networks.pt", weights_only=True)["acquisition"]["resolution"] == 32
 
 
+def test_a_warm_start_leaves_the_scratch_networks_to_the_config(tmp_path):
+    shipped = ROOT / "mitsvbrdf" / "weights" / "networks.pt"
+    t = Trainer(tiny("init", tmp_path / "run", initializer_width=12, train_l0=False,
+                     extra=[f'pretrained.warm_start="{shipped}"', 'pretrained.scratch=["initializer"]']), progress=False)
+    assert t.stage.nets["initializer"].config["width"] == 12  # the config's, not the file's
+    l0 = torch.load(shipped, weights_only=True)["l0"]["state"]["logits"]
+    torch.testing.assert_close(t.stage.nets["l0"].logits.detach(), l0, rtol=0, atol=0)  # still the file's
+
+
+@pytest.mark.parametrize("extra", [['pretrained.scratch=["lighting"]'], ['pretrained.scratch=["initializer"]']],
+                         ids=["not-trained-here", "without-warm-start"])
+def test_scratch_networks_that_the_stage_does_not_train_or_without_a_warm_start_are_refused(tmp_path, extra):
+    shipped = ROOT / "mitsvbrdf" / "weights" / "networks.pt"
+    warm = [f'pretrained.warm_start="{shipped}"'] if "lighting" in extra[0] else []
+    with pytest.raises(TrainingError, match="pretrained.scratch"):
+        Trainer(tiny("init", tmp_path / "run", extra=[*warm, *extra]), progress=False)
+
+
 def test_missing_or_unknown_stage_is_refused():
     with pytest.raises(ConfigError, match="stage: must be one of"):
         load_config(table={"seed": 1})

@@ -19,7 +19,8 @@ Layout (every key optional except ``stage``; defaults below)::
                the elapsed fraction of it, and steps is only an upper bound)
     [pretrained]  networks = "runs/init/networks.pt"  (an earlier stage's export);
                   warm_start = "mitsvbrdf/weights/networks.pt"  (an export the networks this stage
-                  builds from scratch start from, where it has them)
+                  builds from scratch start from, where it has them);
+                  scratch = ["initializer"]  (networks that warm start leaves out)
 
 Shared bases: ``extends = "base/small.toml"`` (or a list of files, applied in order) at the top
 level reads those configs first, relative to the including file; a base may extend others in turn.
@@ -110,6 +111,9 @@ class PretrainedConfig:
     # networks.pt whose networks start those this stage would build from scratch, where it has them
     # (continuing a chain from an export: G_sc of stage 2 from the shipped weights)
     warm_start: str = ""
+    # networks the warm start leaves out: built from the config and trained from scratch, e.g. a
+    # wider initializer under the export's L_0 (["initializer"] with model.train_l0 = false)
+    scratch: list[str] = field(default_factory=list)
 
 
 @dataclass

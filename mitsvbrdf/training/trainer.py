@@ -167,7 +167,7 @@ class Trainer:
         cls = STAGES[cfg.stage]
         self.rig = rig  # the stage's, unless data.crop_from gives each step a window of it
         self.stage: TrainingStage = cls(cfg.model, cfg.loss, settings, rig)
-        if cls.PRETRAINED or cfg.pretrained.warm_start:
+        if cls.PRETRAINED or cfg.pretrained.warm_start or cfg.pretrained.scratch:
             self._load_pretrained()
         self.stage.to(self.device)
         groups = [g for g in self.stage.param_groups(cfg.train.lr) if g["params"]]
@@ -212,11 +212,17 @@ class Trainer:
                 raise TrainingError(f"stage {self.cfg.stage!r} starts from an earlier stage's networks: set "
                                     f"pretrained.networks (now {str(path)!r}, which does not exist)")
             self.stage.load_pretrained(read_network_file(path, "networks"))
+        if pre.scratch:
+            trained = sorted(n for n in self.stage.nets if n not in self.stage.PRETRAINED)
+            if not pre.warm_start or not set(pre.scratch) <= set(trained):
+                raise TrainingError(f"pretrained.scratch {pre.scratch} must name networks stage {self.cfg.stage!r} "
+                                    f"trains ({trained}) and go with a pretrained.warm_start")
         if pre.warm_start:
             path = Path(pre.warm_start)
             if not path.exists():
                 raise TrainingError(f"pretrained.warm_start: {str(path)!r} does not exist")
-            self.stage.warm_start(read_network_file(path, "networks"))
+            records = read_network_file(path, "networks")
+            self.stage.warm_start({k: v for k, v in records.items() if k not in pre.scratch})
 
     def _load_checkpoint(self) -> None:
         path = self.checkpoint_path

@@ -14,7 +14,8 @@ the initializer's estimate, L_pdf, G_l's four patterns). The figure shows, per m
 L_pdf and L_1..L_4; the table gives the RMS distance between the pattern sets of each pair
 (drive values in [0, 1]) beside the RMS spread of each set's own four patterns, so a reader can
 tell "differs between materials" from "differs between the four patterns of one material".
-Writes docs/benchmarks/pattern_gallery.md (+ CSV, PNG).
+A second table sets the initializer's estimate of each material (what L_pdf is computed from)
+beside the truth. Writes docs/benchmarks/pattern_gallery.md (+ CSV, PNG).
 """
 
 from __future__ import annotations
@@ -54,6 +55,17 @@ def archetypes(size: int) -> dict[str, ms.SVBRDF]:
     return {"metal": metal, "rough dielectric": dielectric, "bumpy": bumpy}
 
 
+SUMMARY = ("roughness", "normal tilt", "specular")
+
+
+def summary(m: ms.SVBRDF) -> dict[str, float]:
+    """Mean roughness, RMS normal tilt (|n_xy|, the sine of the angle from +z) and mean specular
+    albedo of one material."""
+    n = m.normal[0]
+    return {"roughness": float(m.roughness.mean()), "normal tilt": float(n[:2].square().sum(0).mean().sqrt()),
+            "specular": float(m.specular.mean())}
+
+
 def rms(a: torch.Tensor, b: torch.Tensor) -> float:
     return float((a - b).square().mean().sqrt())
 
@@ -69,12 +81,14 @@ def main() -> None:
     acq = load_adaptive(args.networks, rig)
     acq.check_resolution(args.size, "--size")
     mats = archetypes(args.size)
-    shown = {}
+    shown, seen = {}, {}
     for name, m in mats.items():
         capture = rendered_capture(m, rig, method="mitsuba", spp=args.spp, seed=0)
         i0 = capture(acq.l0[None, None])[:, 0]
-        patterns, lpdf, _ = acq.predict_patterns(i0)
+        patterns, lpdf, estimate = acq.predict_patterns(i0)
         shown[name] = (i0[0], lpdf[0, 0], patterns[0])
+        seen[name] = {"material": name, **{f"{k} {which}": round(v, 4) for which, mm in (("est.", estimate), ("true", m))
+                                         for k, v in summary(mm).items()}}
     rows = []
     for a, b in itertools.combinations(shown, 2):
         rows.append({"pair": f"{a} vs {b}", "rms_between": round(rms(shown[a][2], shown[b][2]), 4)})
@@ -85,7 +99,13 @@ def main() -> None:
     text = (f"Command: `benchmarks/pattern_gallery.py --networks {net} --size {args.size} --spp {args.spp}`\n\n"
             "RMS distance of drive values (in [0, 1]) between the 4 predicted patterns of two materials, "
             "and within one material's set.\n\n| pair | RMS distance |\n|---|---:|\n" +
-            "\n".join(f"| {r['pair']} | {r['rms_between']} |" for r in rows) + "\n\n![patterns](pattern_gallery.png)\n")
+            "\n".join(f"| {r['pair']} | {r['rms_between']} |" for r in rows) + "\n\n![patterns](pattern_gallery.png)\n\n"
+            "L_pdf, and through it the patterns, comes from the initializer's estimate from I_0: its mean "
+            "roughness, RMS normal tilt (sin of the angle from +z) and mean specular albedo beside the truth.\n\n"
+            "| material | " + " | ".join(f"{k} {w}" for k in SUMMARY for w in ("est.", "true")) + " |\n|---|"
+            + "---:|" * (2 * len(SUMMARY)) + "\n"
+            + "\n".join(f"| {r['material']} | " + " | ".join(f"{r[f'{k} {w}']:.3f}" for k in SUMMARY for w in ("est.", "true"))
+                         + " |" for r in seen.values()) + "\n")
     print(text)
     write_report(args.out, "pattern_gallery", "Predicted patterns of a metal, a rough dielectric and a bumpy material",
                  "pattern_gallery.py", text, rows)

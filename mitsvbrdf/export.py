@@ -72,8 +72,7 @@ def export_mitsuba_scene(svbrdf: SVBRDF, out_dir: str | Path, rig: Rig | None = 
         f'    <emitter type="point">\n        <point name="position" x="{p[0]:.6g}" y="{p[1]:.6g}" z="{p[2]:.6g}"/>\n'
         f'        <rgb name="intensity" value="{intensity:.6g}"/>\n    </emitter>' for p in np.asarray(lights))
     h, w = m.resolution
-    cx, cy = rig.sample_centre  # a window of the sample (Rig.window) sits off the origin
-    shift = f'<translate x="{cx:.9g}" y="{cy:.9g}"/>' if (cx, cy) != (0.0, 0.0) else ""
+    to_world = " ".join(f"{v:.9g}" for v in rig.sample_to_world().ravel())  # off the origin for a Rig.window
     xml = f"""<!-- Written by mitsvbrdf.export: the material {m.name or ''} on the {rig.sample_size * 100:g} cm sample.
      Needs the project's plugins: import mitsvbrdf_plugins; mitsvbrdf_plugins.register() -->
 <scene version="3.0.0">
@@ -92,7 +91,7 @@ def export_mitsuba_scene(svbrdf: SVBRDF, out_dir: str | Path, rig: Rig | None = 
         <sampler type="independent"><integer name="sample_count" value="$spp"/></sampler>
     </sensor>
     <shape type="rectangle" id="sample">
-        <transform name="to_world"><scale x="{half:.9g}" y="{half:.9g}"/>{shift}</transform>
+        <transform name="to_world"><matrix value="{to_world}"/></transform>
         <bsdf type="svbrdf_ggx" id="material">
             <!-- {h}x{w} texels, linear values as used by the BRDF -->
             <string name="normal" value="normal.exr"/>

@@ -123,11 +123,12 @@ def cmd_materials_preview(args: argparse.Namespace) -> int:
                              ("--start", args.start, 0)):
         check_int(name, value, low)
     check_float("--bump", args.bump, 0.0)
+    check_float("--dark-metals", args.dark_metals, 0.0, 1.0)
     check_out_file("--out", args.out)
     families = [f.strip() for f in args.families.split(",") if f.strip()] if args.families else None
     started = time.time()
     svbrdf = procedural.generate(args.n, size=args.size, seed=args.seed, families=families, start=args.start,
-                                 bump=args.bump)
+                                 bump=args.bump, dark_metals=args.dark_metals)
     gen_s = time.time() - started
     labels = [f"{args.start + i}: {procedural.family_of(args.start + i, args.seed, families)}" for i in range(args.n)]
     renders = None
@@ -296,6 +297,8 @@ def build_parser() -> argparse.ArgumentParser:
     m.add_argument("--families", default="", help="comma-separated families (default: all)")
     m.add_argument("--size", type=int, default=256, help="generated resolution (default 256)")
     m.add_argument("--bump", type=float, default=1.0, help="relief multiplier (default 1)")
+    m.add_argument("--dark-metals", type=float, default=0.0,
+                   help="fraction of materials with dark pure metals, F0 0.03-0.3 (default 0)")
     m.add_argument("--tile", type=int, default=128, help="displayed tile size in px (default 128)")
     m.add_argument("--columns", type=int, default=2, help="materials side by side (default 2)")
     m.add_argument("--render-size", type=int, default=64,

@@ -104,7 +104,9 @@ def test_threads_argument_restores_torch_setting():
 @pytest.mark.parametrize("kwargs", [dict(n=0), dict(n=1, size=2), dict(n=1, families=["granite"]),
                                     dict(n=1, families=[]), dict(n=1, bump=-1.0), dict(n=1, bump=(0.0, 2.0)),
                                     dict(n=1, bump=(2.0, 1.0)), dict(n=1, bump=(1.0, math.inf)),
-                                    dict(n=1, bump=(1.0, 2.0, 3.0)), dict(n=1, bump=True)])
+                                    dict(n=1, bump=(1.0, 2.0, 3.0)), dict(n=1, bump=True),
+                                    dict(n=1, dark_metals=-0.1), dict(n=1, dark_metals=1.5),
+                                    dict(n=1, dark_metals=True)])
 def test_bad_arguments_raise_material_error(kwargs):
     with pytest.raises(MaterialError):
         generate(**kwargs)
@@ -164,6 +166,48 @@ def test_a_material_keeps_its_bump_factor_in_any_batch():
 def test_a_degenerate_bump_range_is_its_one_value():
     torch.testing.assert_close(generate(3, size=16, seed=5, bump=(2.0, 2.0)).normal,
                                generate(3, size=16, seed=5, bump=2.0).normal)
+
+
+def _pure_metal_texels(m: ms.SVBRDF) -> torch.Tensor:
+    """(B, 1, H, W): texels without diffuse, the ones ``dark_metals`` darkens."""
+    return m.diffuse.amax(dim=1, keepdim=True) <= 0
+
+
+def test_dark_metals_scale_only_the_f0_of_pure_metal_texels_by_the_materials_own_factor():
+    base = generate(36, size=16, seed=6)
+    dark = generate(36, size=16, seed=6, dark_metals=1.0)
+    metal = _pure_metal_texels(base)
+    factors = torch.tensor([procedural.metal_dimming(i, 6, 1.0) for i in range(36)]).view(-1, 1, 1, 1)
+    lo, hi = procedural.DARK_METAL_F0
+    assert bool(((factors >= lo) & (factors <= hi)).all())
+    assert bool(metal.any()), "the stream's first 36 materials hold pure metal texels"
+    torch.testing.assert_close(dark.specular, torch.where(metal, base.specular * factors, base.specular))
+    for key in ("normal", "diffuse", "roughness"):
+        torch.testing.assert_close(getattr(dark, key), getattr(base, key))
+
+
+def test_no_dark_metals_leaves_the_stream_as_it_was():
+    assert procedural.metal_dimming(3, 0, 0.0) == 1.0
+    torch.testing.assert_close(generate(12, size=16, seed=7, dark_metals=0.0).specular,
+                               generate(12, size=16, seed=7).specular)
+
+
+def test_dark_metals_darken_about_their_fraction_of_materials():
+    n, fraction = 400, 0.25
+    darkened = sum(procedural.metal_dimming(i, 0, fraction) != 1.0 for i in range(n))
+    sd = math.sqrt(n * fraction * (1 - fraction))  # binomial
+    assert abs(darkened - n * fraction) < 4 * sd
+
+
+def test_dark_metals_reach_the_f0_of_the_dataset_metal_that_no_palette_metal_reaches():
+    # 2_svbrdf: kd = 0, F0 (RGB mean) 0.05-0.17; undarkened pure metals stay above 0.25.
+    def pure_metal_f0(m: ms.SVBRDF) -> torch.Tensor:
+        return m.specular.mean(dim=1, keepdim=True)[_pure_metal_texels(m)]
+
+    plain, dark = generate(72, size=16, seed=0), generate(72, size=16, seed=0, dark_metals=1.0)
+    assert float(pure_metal_f0(plain).min()) > 0.25
+    f0 = pure_metal_f0(dark)
+    assert bool(((f0 > 0.05) & (f0 < 0.1)).any())
 
 
 # ---- coverage ------------------------------------------------------------------------------------

@@ -104,6 +104,19 @@ def test_the_bump_range_reaches_the_procedural_dataset():
     assert make_dataset(cfg).bump == (1.0, 4.0)
 
 
+@pytest.mark.parametrize("fraction, source", [("-0.1", "procedural"), ("1.5", "procedural"), ("0.25", "strips")])
+def test_a_dark_metal_fraction_outside_0_1_or_for_loaded_data_is_refused(fraction, source):
+    with pytest.raises(ConfigError, match=r"data\.dark_metals: must be"):
+        load_config(ROOT / "train" / "stage2-small.toml", [f"data.dark_metals={fraction}", f'data.source="{source}"'])
+
+
+def test_the_dark_metal_fraction_reaches_the_procedural_dataset():
+    from mitsvbrdf.training.trainer import make_dataset
+
+    cfg = load_config(ROOT / "train" / "stage2-small.toml", ["data.dark_metals=0.25"])
+    assert make_dataset(cfg).dark_metals == 0.25
+
+
 @pytest.mark.parametrize("crop_from", [32, 20, -8])
 def test_windows_from_materials_not_larger_than_them_are_refused(crop_from):
     with pytest.raises(ConfigError, match=r"data\.crop_from: must be"):

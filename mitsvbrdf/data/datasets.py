@@ -39,7 +39,7 @@ from torch.utils.data import Dataset
 from ..errors import ImageFileError, MaterialError, MitsvbrdfError
 from ..svbrdf import SVBRDF
 from .augment import MAP_KEYS, Augment, crop_maps
-from .procedural import check_bump, generate_indices, material_seed
+from .procedural import check_bump, check_dark_metals, generate_indices, material_seed
 
 STRIP_SUFFIXES = (".png", ".jpg", ".jpeg")
 
@@ -101,7 +101,7 @@ class ProceduralDataset(Dataset, _Epoch):
     Args:
         length: number of items (the stream itself is unbounded).
         size: resolution of the generated maps.
-        seed, families, bump: the stream's identity (see ``generate``).
+        seed, families, bump, dark_metals: the stream's identity (see ``generate``).
         augment: optional :class:`Augment` applied per item (generated materials need none; flips
             and rotations are cheap extra variety).
         start: index of item 0 in the stream (e.g. disjoint training and validation ranges).
@@ -109,12 +109,13 @@ class ProceduralDataset(Dataset, _Epoch):
     """
 
     def __init__(self, length: int, size: int = 256, seed: int = 0, families: Sequence[str] | None = None, *,
-                 augment: Augment | None = None, bump: float | tuple[float, float] = 1.0, start: int = 0,
-                 device: str | None = None):
+                 augment: Augment | None = None, bump: float | tuple[float, float] = 1.0,
+                 dark_metals: float = 0.0, start: int = 0, device: str | None = None):
         if length < 1:
             raise MaterialError(f"length must be >= 1, got {length}")
         self.length, self.size, self.seed, self.families = int(length), int(size), int(seed), families
         self.augment, self.bump, self.start, self.device = augment, check_bump(bump), int(start), device
+        self.dark_metals = check_dark_metals(dark_metals)
 
     def __len__(self) -> int:
         return self.length
@@ -131,7 +132,7 @@ class ProceduralDataset(Dataset, _Epoch):
         """Items at ``indices``, generated in one vectorised batch (used by DataLoader)."""
         idx = [self._check(int(i)) for i in indices]
         batch = generate_indices([self.start + i for i in idx], self.size, self.seed, self.families,
-                                 self.device, bump=self.bump)
+                                 self.device, bump=self.bump, dark_metals=self.dark_metals)
         items = []
         for b, i in enumerate(idx):
             item = _item(batch[b], i, f"procedural:{self.seed}:{self.start + i}")

@@ -8,7 +8,7 @@ Usage::
     procedural.family_of(17, seed=0)                              # which family item 17 belongs to
 
 Determinism: material ``i`` of stream ``seed`` is a pure function of ``(seed, i, families, size,
-bump)``: every random number it uses comes from its own ``torch.Generator`` seeded with a hash of
+bump, dark_metals)``: every random number it uses comes from its own ``torch.Generator`` seeded with a hash of
 ``(seed, i)``, drawn on the CPU, so it is the same whatever batch, worker or device it is built in
 (up to floating-point rounding on other devices). Random spectra are drawn in cycles per sample,
 independently of ``size``, so one material generated at 64 px and at 256 px shows the same
@@ -39,7 +39,9 @@ encoding :mod:`mitsvbrdf.svbrdf` documents, the one its strips are loaded in). R
 (pure metals, kd = 0) to bright (~0.9). Widened to cover the dataset samples
 (docs/benchmarks/data_statistics.md): a quarter of the materials get a steep relief
 (:data:`STEEP_FRACTION`), a fifth saturated colours whose channels reach 0 or 1
-(:data:`SATURATED_FRACTION`), a third of metal albedos kd = 0 (:data:`METAL_BLACK_KD`). Normals
+(:data:`SATURATED_FRACTION`), a third of metal albedos kd = 0 (:data:`METAL_BLACK_KD`), and,
+with ``dark_metals > 0``, that fraction of materials get dark pure metals (F0 scaled into
+0.03-0.3, :data:`DARK_METAL_F0`). Normals
 come from a height field (sample units, side = 1) by :func:`height_to_normal`; the paint family's
 metallic flakes add a per-flake slope field on top.
 """
@@ -64,6 +66,10 @@ ROUGHNESS_MIN = 0.02
 METAL_BLACK_KD = 0.35
 #: Fraction of materials with a steep relief: the relief multiplier times logu(*STEEP_RELIEF).
 STEEP_FRACTION, STEEP_RELIEF = 0.25, (1.5, 4.0)
+#: Range of the F0 factor of a darkened pure metal (``dark_metals`` of :func:`generate`): oxidised,
+#: anodised or dark alloys, whose coloured F0 of 0.03-0.3 no palette metal reaches (the dataset's
+#: blue riveted plate, 2_svbrdf: kd = 0, ks mean 0.06-0.1, docs/benchmarks/data_statistics.md).
+DARK_METAL_F0 = (0.08, 0.4)
 #: Fraction of materials with saturated colours: kd and ks pushed away from their luminance by a
 #: factor u(*SATURATION), then clamped (so channels reach 0 or 1, as in saturated artist maps).
 SATURATED_FRACTION, SATURATION = 0.2, (1.5, 3.0)
@@ -857,6 +863,25 @@ def bump_factor(index: int, seed: int, bump: Bump) -> float:
     return Draw(material_seed(seed, index, "bump")).logu(lo, hi)
 
 
+def metal_dimming(index: int, seed: int, dark_metals: float) -> float:
+    """F0 factor of the pure-metal texels (kd = 0) of material ``index``: with probability
+    ``dark_metals`` log-uniform in :data:`DARK_METAL_F0`, else 1. Drawn from the material's own
+    generator (salt ``"dark"``), so its other draws are the same for every ``dark_metals``, and
+    ``dark_metals = 0`` leaves every stream as it was."""
+    if dark_metals <= 0:
+        return 1.0
+    d = Draw(material_seed(seed, index, "dark"))
+    return d.logu(*DARK_METAL_F0) if d.p(dark_metals) else 1.0
+
+
+def check_dark_metals(dark_metals: float) -> float:
+    """``dark_metals`` validated: a probability in [0, 1]."""
+    if isinstance(dark_metals, bool) or not isinstance(dark_metals, (int, float)) \
+            or not 0.0 <= float(dark_metals) <= 1.0:
+        raise MaterialError(f"dark_metals must be a fraction in [0, 1], got {dark_metals!r}")
+    return float(dark_metals)
+
+
 def check_bump(bump: Bump) -> Bump:
     """``bump`` validated: a finite number >= 0, or a range (lo, hi) with 0 < lo <= hi finite."""
     if isinstance(bump, bool):
@@ -890,7 +915,7 @@ def _default_chunk(size: int, device: torch.device) -> int:
 
 def generate(n: int, size: int = 256, seed: int = 0, families: Sequence[str] | None = None,
              device: str | torch.device | None = None, *, start: int = 0, bump: Bump = 1.0,
-             chunk: int | None = None, threads: int | None = 1) -> SVBRDF:
+             dark_metals: float = 0.0, chunk: int | None = None, threads: int | None = 1) -> SVBRDF:
     """Materials ``start .. start + n - 1`` of stream ``seed`` as one SVBRDF (B = n).
 
     Args:
@@ -906,6 +931,9 @@ def generate(n: int, size: int = 256, seed: int = 0, families: Sequence[str] | N
             (:func:`bump_factor`). Training at 64 px uses (1, 4): a 64 px material lacks the
             finest, steepest detail of the same material at 256 px, and a multiplier of 2 restores
             the 256 px slope statistics (docs/benchmarks/data_statistics.md).
+        dark_metals: fraction of materials whose pure-metal texels (kd = 0) have their F0 scaled
+            by a factor log-uniform in :data:`DARK_METAL_F0` (:func:`metal_dimming`); materials
+            without such texels are unchanged, and 0 (default) leaves the stream as it was.
         chunk: materials built per vectorised call (default: a cache-friendly size on CPU).
         threads: torch intra-op threads on the CPU while generating (restored afterwards); None
             keeps torch's setting. The build is many small tensor ops, so the default is one
@@ -918,14 +946,14 @@ def generate(n: int, size: int = 256, seed: int = 0, families: Sequence[str] | N
         raise MaterialError(f"generate needs n >= 1, got {n}")
     if size < 4:
         raise MaterialError(f"generate needs size >= 4, got {size}")
-    return generate_indices(range(start, start + n), size, seed, families, device, bump=bump, chunk=chunk,
-                            threads=threads, name=f"procedural:{seed}:{start}")
+    return generate_indices(range(start, start + n), size, seed, families, device, bump=bump,
+                            dark_metals=dark_metals, chunk=chunk, threads=threads, name=f"procedural:{seed}:{start}")
 
 
 def generate_indices(indices: Sequence[int], size: int = 256, seed: int = 0,
                      families: Sequence[str] | None = None, device: str | torch.device | None = None, *,
-                     bump: Bump = 1.0, chunk: int | None = None, threads: int | None = 1,
-                     name: str | None = None) -> SVBRDF:
+                     bump: Bump = 1.0, dark_metals: float = 0.0, chunk: int | None = None,
+                     threads: int | None = 1, name: str | None = None) -> SVBRDF:
     """Materials at arbitrary ``indices`` of stream ``seed`` (in that order), built in vectorised
     groups; arguments as for :func:`generate`."""
     dev = torch.device(device) if device is not None else torch.device("cpu")
@@ -936,6 +964,7 @@ def generate_indices(indices: Sequence[int], size: int = 256, seed: int = 0,
         raise MaterialError(f"material indices must be >= 0, got {min(indices)}")
     _check_families(families)
     bump = check_bump(bump)
+    dark_metals = check_dark_metals(dark_metals)
     if size < 4:
         raise MaterialError(f"size must be >= 4, got {size}")
     chunk = chunk or _default_chunk(size, dev)
@@ -943,17 +972,18 @@ def generate_indices(indices: Sequence[int], size: int = 256, seed: int = 0,
     if threads is not None and dev.type == "cpu":
         torch.set_num_threads(max(1, int(threads)))
     try:
-        return _build_all(indices, size, seed, families, dev, bump, chunk, name)
+        return _build_all(indices, size, seed, families, dev, bump, dark_metals, chunk, name)
     finally:
         torch.set_num_threads(previous)
 
 
-def _build_all(indices: list[int], size: int, seed: int, families, dev: torch.device, bump: Bump, chunk: int,
-               name: str | None) -> SVBRDF:
+def _build_all(indices: list[int], size: int, seed: int, families, dev: torch.device, bump: Bump,
+               dark_metals: float, chunk: int, name: str | None) -> SVBRDF:
     groups: dict[tuple[str, str], list[tuple[int, dict]]] = {}
     for pos, i in enumerate(indices):
         fam, variant, params = sample_parameters(i, seed, families)
-        groups.setdefault((fam, variant), []).append((pos, dict(params, bump=bump_factor(i, seed, bump))))
+        groups.setdefault((fam, variant), []).append(
+            (pos, dict(params, bump=bump_factor(i, seed, bump), dimming=metal_dimming(i, seed, dark_metals))))
     B = len(indices)
     out = {"normal": torch.empty(B, 3, size, size, device=dev), "diffuse": torch.empty(B, 3, size, size, device=dev),
            "roughness": torch.empty(B, 1, size, size, device=dev), "specular": torch.empty(B, 3, size, size, device=dev)}
@@ -964,7 +994,7 @@ def _build_all(indices: list[int], size: int, seed: int, families, dev: torch.de
                 pos = torch.tensor([m[0] for m in part], device=dev)
                 p = _collate_params([m[1] for m in part], dev)
                 lay = _REGISTRY[fam].build(p, variant, size)
-                maps = _finish(lay, p["relief"] * p["bump"], size, p["saturation"])
+                maps = _finish(lay, p["relief"] * p["bump"], size, p["saturation"], p["dimming"])
                 for k, v in maps.items():
                     out[k].index_copy_(0, pos, v)
     return SVBRDF(**out, name=name, check=False)
@@ -976,9 +1006,11 @@ def _saturate(c: Tensor, saturation: Tensor) -> Tensor:
     return lum + (c - lum) * saturation.view(-1, 1, 1, 1)
 
 
-def _finish(lay: Layers, relief: Tensor, size: int, saturation: Tensor | None = None) -> dict[str, Tensor]:
+def _finish(lay: Layers, relief: Tensor, size: int, saturation: Tensor | None = None,
+            dimming: Tensor | None = None) -> dict[str, Tensor]:
     """Layers -> clamped SVBRDF maps (normals from height x relief, colours saturated by
-    ``saturation`` (B,) when given and not all 1)."""
+    ``saturation`` (B,) when given and not all 1, the F0 of texels without diffuse (pure metal)
+    scaled by ``dimming`` (B,) when given and not all 1)."""
     B = relief.shape[0]
     shape = (B, 3, size, size)
     slope = None if lay.slope is None else lay.slope * relief.view(-1, 1, 1, 1)
@@ -987,11 +1019,14 @@ def _finish(lay: Layers, relief: Tensor, size: int, saturation: Tensor | None = 
     kd, ks = lay.kd.expand(shape), lay.ks.expand(shape)
     if saturation is not None and bool((saturation != 1).any()):
         kd, ks = _saturate(kd, saturation), _saturate(ks, saturation)
+    if dimming is not None and bool((dimming != 1).any()):
+        pure_metal = kd.amax(dim=1, keepdim=True) <= 0  # after saturation, which keeps kd = 0 at 0
+        ks = torch.where(pure_metal, ks * dimming.view(-1, 1, 1, 1), ks)
     return {"normal": normal, "diffuse": kd.clamp(0.0, 1.0),
             "roughness": rough.clamp(ROUGHNESS_MIN, 1.0), "specular": ks.clamp(0.0, 1.0)}
 
 
 def material(index: int, size: int = 256, seed: int = 0, families: Sequence[str] | None = None,
-             device: str | torch.device | None = None, *, bump: Bump = 1.0) -> SVBRDF:
+             device: str | torch.device | None = None, *, bump: Bump = 1.0, dark_metals: float = 0.0) -> SVBRDF:
     """Material ``index`` of stream ``seed`` alone (B = 1); equal to ``generate(..)[index - start]``."""
-    return generate(1, size, seed, families, device, start=index, bump=bump)
+    return generate(1, size, seed, families, device, start=index, bump=bump, dark_metals=dark_metals)

@@ -9,6 +9,7 @@ Layout (every key optional except ``stage``; defaults below)::
 
     [data]     source = "procedural" | "strips" | "folders"; root; size; length; families;
                bump = [lo, hi] (procedural relief multiplier, log-uniform per material);
+               dark_metals (fraction of procedural materials with dark pure metals, F0 0.03-0.3);
                crop_from (0: materials at ``size``; N > size: materials at N px, each step's batch
                a random size x size window of them, rendered where it sits: Rig.window)
     [render]   method = "mitsuba" | "ltc" | "reference"; spp; [render.noise] shot, read, bits
@@ -68,6 +69,9 @@ class DataConfig:
     # procedural relief multiplier range [lo, hi], log-uniform per material ([1, 1]: the
     # generator's own relief); see mitsvbrdf.data.procedural.generate
     bump: list[float] = field(default_factory=lambda: [1.0, 1.0])
+    # fraction of procedural materials whose pure-metal texels get a dark F0 (oxidised, anodised:
+    # mitsvbrdf.data.procedural.DARK_METAL_F0); 0 keeps the stream as it was
+    dark_metals: float = 0.0
     # 0: the materials are made at ``size``. N > size: they are made (or loaded) at N px and every
     # step trains on one random size x size window of them, the same for the batch, rendered with
     # the rig of that window (Rig.window), so each texel keeps its light and view directions: the
@@ -293,6 +297,9 @@ def _check_values(cfg: Config) -> None:
                "a range [lo, hi] with 0 < lo <= hi"),
               (cfg.data.source == "procedural" or cfg.data.bump == [1.0, 1.0], "data.bump",
                "[1, 1] unless data.source = 'procedural' (loaded maps keep their own relief)"),
+              (0.0 <= cfg.data.dark_metals <= 1.0, "data.dark_metals", "a fraction in [0, 1]"),
+              (cfg.data.source == "procedural" or cfg.data.dark_metals == 0, "data.dark_metals",
+               "0 unless data.source = 'procedural' (loaded maps keep their own albedos)"),
               (cfg.train.lr_min >= 0, "train.lr_min", ">= 0"), (cfg.train.weight_decay >= 0, "train.weight_decay", ">= 0"),
               (cfg.train.grad_clip >= 0, "train.grad_clip", ">= 0 (0: no clipping)"),
               (cfg.render.noise.shot >= 0, "render.noise.shot", ">= 0"),

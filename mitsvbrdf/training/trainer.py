@@ -116,7 +116,8 @@ def make_dataset(cfg: Config):
     d = cfg.data
     size = d.crop_from or d.size  # with windows, the materials they are cut from
     if d.source == "procedural":
-        return ProceduralDataset(d.length, size, seed=cfg.seed, families=d.families or None, bump=tuple(d.bump))
+        return ProceduralDataset(d.length, size, seed=cfg.seed, families=d.families or None, bump=tuple(d.bump),
+                                 dark_metals=d.dark_metals)
     if d.source == "strips":
         return StripDataset(d.root, crop=size)
     return MapFolderDataset(d.root, crop=size)

@@ -152,6 +152,30 @@ def texel_grid(resolution: int | tuple[int, int]) -> tuple[int, int]:
     return int(h), int(w)
 
 
+def per_texel(rig: "Rig", resolution: tuple[int, int], compute, dim: int):
+    """``compute(rig, resolution)``, a tensor (or tuple of tensors) of per-texel geometry with the
+    texels row-major along ``dim``; for a window (:meth:`Rig.window_texels`) the window's rows of
+    ``compute(parent, (grid, grid))``, so that a cache inside ``compute`` keyed on the rig keeps
+    one parent entry instead of missing on every window of a training run. Exact: a window's texels
+    are the parent's texels (same positions, view directions, LCD and display)."""
+    win = rig.window_texels(resolution)
+    if win is None:
+        return compute(rig, tuple(resolution))
+    parent, grid, idx = win
+    full = compute(parent, (grid, grid))
+    if isinstance(full, tuple):
+        return tuple(t.index_select(dim, idx.to(t.device)) for t in full)
+    return full.index_select(dim, idx.to(full.device))
+
+
+def _same_rig(a: "Rig", b: "Rig") -> bool:
+    """Whether two rigs have the same camera, LCD, sample square and display (not their source)."""
+    same_square = np.allclose([a.sample_size, *a.sample_centre], [b.sample_size, *b.sample_centre], rtol=0, atol=1e-12)
+    return (same_square and np.array_equal(a.camera_to_world, b.camera_to_world)
+            and np.array_equal(a.lcd_to_world, b.lcd_to_world)
+            and (a.camera_fov, a.film_size, a.lcd_cells, a.display) == (b.camera_fov, b.film_size, b.lcd_cells, b.display))
+
+
 @dataclass(frozen=True, eq=False)
 class Rig:
     """Camera + LCD + sample geometry and the display model of one capture setup.
@@ -171,6 +195,8 @@ class Rig:
     #: (x, y) metres of the sample square's centre: the origin for a scene file's sample, elsewhere
     #: for a window of it (:meth:`window`)
     sample_centre: tuple[float, float] = (0.0, 0.0)
+    #: (parent, grid, top, left, size) of a rig made by :meth:`window`; see :meth:`window_texels`
+    window_of: tuple | None = dataclasses.field(default=None, repr=False)
 
     # ---- construction -------------------------------------------------------------------------
 
@@ -238,9 +264,31 @@ class Rig:
                              "grid (needs 1 <= size <= grid and 0 <= top, left <= grid - size)")
         s = self.sample_size / grid  # one texel's side
         cx, cy = self.sample_centre
+        parent, origin = self, (top, left)
+        if self.window_of is not None and self.window_of[4] == grid:  # a window of a window, same texels
+            parent, _, top0, left0, _ = self.window_of
+            grid, origin = self.window_of[1], (top0 + top, left0 + left)
         return dataclasses.replace(self, sample_size=s * size,
                                    sample_centre=(cx - self.sample_size / 2 + (left + size / 2) * s,
-                                                  cy + self.sample_size / 2 - (top + size / 2) * s))
+                                                  cy + self.sample_size / 2 - (top + size / 2) * s),
+                                   window_of=(parent, grid, *origin, size))
+
+    def window_texels(self, resolution: int | tuple[int, int]) -> "tuple[Rig, int, Tensor] | None":
+        """``(parent, grid, index)`` when this rig is a window of ``parent`` (:meth:`window`) and
+        ``resolution`` is the window's own texel grid: per-texel geometry at ``resolution`` is then
+        the texels ``index`` (row-major, (size * size,) int64) of the parent's at ``grid`` x ``grid``,
+        so a cache of per-texel geometry slices the parent's instead of recomputing it for every
+        window of a training run. None otherwise, also for a rig altered after :meth:`window`
+        (e.g. :meth:`with_display`): it no longer shares the parent's geometry."""
+        if self.window_of is None:
+            return None
+        parent, grid, top, left, size = self.window_of
+        H, W = (resolution, resolution) if isinstance(resolution, int) else tuple(resolution)
+        if (H, W) != (size, size) or not _same_rig(self, dataclasses.replace(parent, window_of=None).window(
+                grid, top, left, size)):
+            return None
+        rows = torch.arange(top, top + size).view(-1, 1) * grid
+        return parent, grid, (rows + torch.arange(left, left + size).view(1, -1)).reshape(-1)
 
     def sample_to_world(self) -> np.ndarray:
         """(4, 4) the sample rectangle's Mitsuba transform: local [-1, 1]^2 onto the sample square."""

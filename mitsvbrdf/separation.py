@@ -26,7 +26,7 @@ from torch import Tensor
 from .render.quadrature import QuadratureSettings, cell_kernels, chunk_size
 from .render.reference import diffuse_integrand
 from .errors import ImageError
-from .rig import Rig
+from .rig import Rig, per_texel
 
 _KERNEL_CACHE: "weakref.WeakKeyDictionary[Rig, dict]" = weakref.WeakKeyDictionary()
 
@@ -34,8 +34,13 @@ _KERNEL_CACHE: "weakref.WeakKeyDictionary[Rig, dict]" = weakref.WeakKeyDictionar
 def flat_diffuse_kernel(rig: Rig, resolution: tuple[int, int], *, device=None,
                         settings: QuadratureSettings | None = None) -> Tensor:
     """(H*W, h*w) kernel K with L^d = K @ radiance: per texel and cell, the integral of
-    e (z . w_i) / pi over the cell. Cached per rig, resolution, device and cell order."""
+    e (z . w_i) / pi over the cell. Cached per rig, resolution, device and cell order; a window's
+    (:meth:`Rig.window`) is its rows of the whole grid's (:func:`mitsvbrdf.rig.per_texel`)."""
     settings = settings or QuadratureSettings()
+    return per_texel(rig, resolution, lambda r, res: _flat_diffuse_kernel(r, res, device, settings), 0)
+
+
+def _flat_diffuse_kernel(rig: Rig, resolution: tuple[int, int], device, settings: QuadratureSettings) -> Tensor:
     H, W = resolution
     key = (H, W, str(device), settings.cell_order)
     cache = _KERNEL_CACHE.setdefault(rig, {})

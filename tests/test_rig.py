@@ -265,6 +265,26 @@ def test_a_window_keeps_camera_lcd_and_display(rig):
     np.testing.assert_array_equal(w.camera_to_world, rig.camera_to_world)
 
 
+def test_a_windows_texels_are_indexed_in_the_parents_row_major_grid(rig):
+    parent, grid, idx = rig.window(16, 4, 8, 8).window_texels(8)
+    assert parent is rig and grid == 16
+    torch.testing.assert_close(rig.surface_points(16).reshape(-1, 3)[idx],
+                               rig.window(16, 4, 8, 8).surface_points(8).reshape(-1, 3), rtol=0, atol=1e-9)
+
+
+def test_a_window_of_a_window_is_indexed_in_the_first_parents_grid(rig):
+    parent, grid, idx = rig.window(16, 4, 8, 8).window(8, 2, 1, 4).window_texels(4)
+    assert parent is rig and grid == 16
+    torch.testing.assert_close(rig.surface_points(16).reshape(-1, 3)[idx],
+                               rig.surface_points(16)[6:10, 9:13].reshape(-1, 3), rtol=0, atol=0)
+
+
+def test_a_window_shares_no_texels_at_another_resolution_or_once_altered(rig):
+    w = rig.window(16, 4, 8, 8)
+    assert rig.window_texels(16) is None and w.window_texels(16) is None
+    assert w.with_display(decay_cos_power=3.0).window_texels(8) is None
+
+
 def test_the_scene_files_sample_transform_is_the_rigs(rig):
     np.testing.assert_allclose(rig.sample_to_world(), np.diag([rig.sample_size / 2] * 2 + [1.0, 1.0]), atol=1e-15)
 

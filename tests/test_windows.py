@@ -59,3 +59,32 @@ def test_mitsuba_puts_the_sample_back_after_a_window(rig, whole, window):
     before = ms.render(whole, PATTERNS, rig, method="mitsuba", spp=4, seed=3)
     ms.render(window, PATTERNS, rig.window(SIZE, TOP, LEFT, CROP), method="mitsuba", spp=4, seed=3)
     torch.testing.assert_close(ms.render(whole, PATTERNS, rig, method="mitsuba", spp=4, seed=3), before, rtol=0, atol=0)
+
+
+# ---- per-texel geometry caches: a window's is its rows of the whole grid's ------------------------
+
+
+def _unwindowed(rig):
+    """The same rig, not known to be a window: its caches compute everything afresh."""
+    import dataclasses
+
+    return dataclasses.replace(rig, window_of=None)
+
+
+def test_the_flat_diffuse_kernel_of_a_window_is_its_rows_of_the_whole_grids(rig):
+    from mitsvbrdf.separation import flat_diffuse_kernel
+
+    win = rig.window(SIZE, TOP, LEFT, CROP)
+    torch.testing.assert_close(flat_diffuse_kernel(win, (CROP, CROP)), flat_diffuse_kernel(_unwindowed(win), (CROP, CROP)),
+                               **TOL)
+
+
+def test_the_control_variate_of_a_window_is_the_one_computed_afresh(rig, window):
+    from mitsvbrdf.render.control_variate import control_variate
+
+    win = rig.window(SIZE, TOP, LEFT, CROP)
+    got = control_variate(window, PATTERNS.unsqueeze(0), win)
+    want = control_variate(window, PATTERNS.unsqueeze(0), _unwindowed(win))
+    torch.testing.assert_close(got.known, want.known, **TOL)
+    torch.testing.assert_close(got.texel, want.texel, **TOL)
+    torch.testing.assert_close(got.lobe_grid, want.lobe_grid, **TOL)

@@ -101,7 +101,7 @@ from functools import lru_cache
 import torch
 from torch import Tensor
 
-from ..rig import Rig
+from ..rig import Rig, per_texel
 from .ltc import view_frame
 from .ltc_fit import default_table
 from .polygon import clipped_polygon_vector_form_factor, grid_cell_form_factors, polygon_vector_form_factor
@@ -146,10 +146,15 @@ def _block_uv(k: int, dtype=torch.float64) -> Tensor:
     return torch.stack([u, v], -1)
 
 
-@lru_cache(maxsize=8)
 def _block_form_factors(rig: Rig, height: int, width: int, k: int) -> Tensor:
     """(3, H * W, K * K) Phi'_b(x) = e_b(x) Phi_b(x), world axes first, float32 (geometry only;
-    computed in chunks of texels, the float64 corner vectors of all blocks would not fit at 256 px)."""
+    computed in chunks of texels, the float64 corner vectors of all blocks would not fit at 256 px).
+    Cached per rig; a window's are its rows of the whole grid's."""
+    return per_texel(rig, (height, width), lambda r, res: _block_form_factors_of(r, *res, k), 1)
+
+
+@lru_cache(maxsize=8)
+def _block_form_factors_of(rig: Rig, height: int, width: int, k: int) -> Tensor:
     lcd = rig.lcd_geometry(dtype=torch.float64)
     verts = lcd.point(_block_uv(k))  # (k+1, k+1, 3)
     quads = torch.stack([verts[:-1, :-1], verts[:-1, 1:], verts[1:, 1:], verts[1:, :-1]], 2).reshape(-1, 4, 3)
@@ -167,12 +172,16 @@ def _block_form_factors(rig: Rig, height: int, width: int, k: int) -> Tensor:
     return torch.cat(out).permute(2, 0, 1).float().contiguous()
 
 
-@lru_cache(maxsize=8)
 def _grid_geometry(rig: Rig, height: int, width: int, k: int) -> tuple[Tensor, Tensor]:
     """Per texel x and LCD grid vertex v (geometry only, float32): (N, 3, V) the unit world
     direction to v (world axes on the middle axis, for batched products), and (N, V)
     G_v d_v = cos(theta_lcd) / r^2 times the decay's cosine factor (0 where v does not face x);
-    V = (k + 1)^2, vertices row-major."""
+    V = (k + 1)^2, vertices row-major. Cached per rig; a window's are its rows of the whole grid's."""
+    return per_texel(rig, (height, width), lambda r, res: _grid_geometry_of(r, *res, k), 0)
+
+
+@lru_cache(maxsize=8)
+def _grid_geometry_of(rig: Rig, height: int, width: int, k: int) -> tuple[Tensor, Tensor]:
     lcd = rig.lcd_geometry(dtype=torch.float64)
     uv = _block_uv(k).reshape(-1, 2)
     x = rig.surface_points((height, width)).double().reshape(-1, 3)

@@ -20,7 +20,9 @@ layer's ``predict`` calls (``mitsvbrdf.acquisition.importance``) for the duratio
 the measurement, so they are what training runs. Each stage starts from the previous stage's
 networks after these few steps (the speed does not depend on the weights). Writes
 docs/benchmarks/training_speed_<device>.md (+ CSV), or training_speed_<device>_<chain>.md for a
-``--chain`` other than small.toml.
+``--chain`` other than small.toml, with ``_<name>`` appended for ``--name`` (a variant's
+``--set`` overrides, e.g. ``--set data.crop_from=256 --name windows``: every step a 64 px window
+of 256 px materials). The ``data`` part of a windowed step includes making the 256 px materials.
 """
 
 from __future__ import annotations
@@ -116,6 +118,9 @@ def main() -> None:
     ap.add_argument("--batch", type=int, default=0, help="batch size (0: the configs')")
     ap.add_argument("--steps", type=int, default=3)
     ap.add_argument("--warmup", type=int, default=1)
+    ap.add_argument("--set", action="append", default=[], metavar="KEY=VALUE",
+                    help="a config override for every stage after the chain's (repeatable), e.g. data.crop_from=256")
+    ap.add_argument("--name", default="", help="suffix of the output files (e.g. 'windows' for a --set variant)")
     ap.add_argument("--out", type=Path, default=ROOT / "docs" / "benchmarks")
     args = ap.parse_args()
     chain = load_chain(args.chain, time_budget=1)
@@ -127,7 +132,7 @@ def main() -> None:
             for st in chain.stages:
                 sets = [*chain.overrides, *st.overrides, f"data.size={size}", f"train.device={args.device}",
                         f'out="{tmp / str(size) / st.config.stem}"', "train.checkpoint_every=1000000000",
-                        f"train.steps={args.warmup + args.steps + 1}"]
+                        f"train.steps={args.warmup + args.steps + 1}", *args.set]
                 if args.batch:
                     sets.append(f"train.batch={args.batch}")
                 cfg = load_config(st.config, sets)
@@ -150,12 +155,14 @@ def main() -> None:
                      " | ".join(f"{r[f'{p} %']}" for p in PARTS) + " |" for r in rows)
     text = (f"Command: `{' '.join(['benchmarks/training_speed.py', *[a for a in __import__('sys').argv[1:]]])}`\n\n"
             f"The stages of `{args.chain.relative_to(ROOT) if args.chain.is_relative_to(ROOT) else args.chain}` "
+            + (f"with {', '.join(f'`{o}`' for o in args.set)} " if args.set else "") +
             f"on {dev} ({torch.get_num_threads()} threads), {cfg.render.method} captures at {cfg.render.spp} spp; "
             f"mean of {args.steps} steps after {args.warmup} warm-up step(s). Share of a step in % per part "
             "(benchmarks/training_speed.py's docstring defines them).\n\n" + head + body + "\n")
     print(text)
     # the shipped chain's table keeps its name; another chain's gets the chain's name appended
-    stem = f"training_speed_{args.device}" + ("" if args.chain.name == "small.toml" else f"_{args.chain.stem}")
+    stem = f"training_speed_{args.device}" + ("" if args.chain.name == "small.toml" else f"_{args.chain.stem}") + \
+        (f"_{args.name}" if args.name else "")
     write_report(args.out, stem, "Training throughput", "training_speed.py", text, rows)
 
 

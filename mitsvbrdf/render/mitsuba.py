@@ -64,6 +64,19 @@ def _place_sample(params, rig: Rig) -> None:
         params.update()
 
 
+def integrator_control_variate(svbrdf, patterns: Tensor, rig: Rig, integrator):
+    """The closed-form part (:func:`control_variate`) with the options of the scene's ``importance``
+    integrator, for patterns (B, P, 3, h, w); None where it has none (plain Monte Carlo)."""
+    if integrator.control_variate == "none":
+        return None
+    return control_variate(svbrdf, patterns, rig, mode=integrator.control_variate,
+                           blocks=integrator.cv_blocks, ltc_min_roughness=integrator.ltc_min_roughness,
+                           ltc_min_cos_view=integrator.ltc_min_cos_view, ltc_grid=integrator.ltc_grid,
+                           ltc_cells_min_roughness=integrator.ltc_cells_min_roughness,
+                           ltc_window=integrator.ltc_window,
+                           ltc_window_min_roughness=integrator.ltc_window_min_roughness)
+
+
 def render_mitsuba(svbrdf, patterns: Tensor, rig: Rig, *, spp: int = 64, seed: int = 0) -> Tensor:
     """Render B materials under P patterns with the scene's plugins; see the module docstring.
 
@@ -100,14 +113,7 @@ def render_mitsuba(svbrdf, patterns: Tensor, rig: Rig, *, spp: int = 64, seed: i
     elif patterns.shape[0] != B:
         raise PatternError(f"per-material patterns have batch {patterns.shape[0]}, the SVBRDF has {B}")
 
-    cv = None
-    if integrator.control_variate != "none":
-        cv = control_variate(svbrdf, patterns, rig, mode=integrator.control_variate,
-                             blocks=integrator.cv_blocks, ltc_min_roughness=integrator.ltc_min_roughness,
-                             ltc_min_cos_view=integrator.ltc_min_cos_view, ltc_grid=integrator.ltc_grid,
-                             ltc_cells_min_roughness=integrator.ltc_cells_min_roughness,
-                             ltc_window=integrator.ltc_window,
-                             ltc_window_min_roughness=integrator.ltc_window_min_roughness)
+    cv = integrator_control_variate(svbrdf, patterns, rig, integrator)
 
     @dr.wrap(source="torch", target="drjit")
     def batch(normal, diffuse, roughness, specular, drive, seed_value, block_rad, coeffs, lobe_grid):

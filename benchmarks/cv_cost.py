@@ -1,0 +1,97 @@
+"""Where an estimator's time goes: the closed-form part (the control variate, torch) against the
+Monte Carlo part (the plugin's kernels), per estimator, on the materials of the procedural study.
+
+    .venv/bin/python benchmarks/cv_cost.py                  # 4 procedural materials at 64 px, 4 spp
+
+Every estimator of :data:`estimators.ESTIMATORS` renders ``generate(n, size, seed=123)`` under
+MonoGrad at ``--spp`` (after one untimed render that compiles the kernels); the median of
+``--repeats`` renders is the time, each with the material cache (:data:`LAST_MATERIALS`) cleared,
+as a training step's first render finds it. "closed form" is the median time of
+:func:`mitsvbrdf.render.control_variate.control_variate` alone on the same inputs; the rest of a
+render ("Monte Carlo and transfers") is the difference. The ratio column is each estimator's time
+over "plain" (the integrator before variance reduction): issue 14 asks for at most 1.5 at 4 spp.
+Writes docs/benchmarks/cv_cost.md (+ CSV).
+"""
+
+from __future__ import annotations
+
+import argparse
+import statistics
+import tempfile
+import time
+from pathlib import Path
+
+import torch
+
+import mitsvbrdf as ms
+from mitsvbrdf import patterns as pt
+from mitsvbrdf.data import procedural
+from mitsvbrdf.render.control_variate import LAST_MATERIALS
+from mitsvbrdf.render.mitsuba import integrator_control_variate, load_scene
+from estimators import ESTIMATORS, estimator_rigs
+from report import OtherLoad, write_report
+
+ROOT = Path(__file__).resolve().parent.parent
+
+
+def median_seconds(fn, repeats: int) -> float:
+    times = []
+    for _ in range(repeats):
+        LAST_MATERIALS.clear()
+        t = time.perf_counter()
+        fn()
+        times.append(time.perf_counter() - t)
+    return statistics.median(times)
+
+
+def closed_form(m: ms.SVBRDF, pats: torch.Tensor, rig: ms.Rig):
+    """The control variate alone with the rig's integrator options, or None for plain Monte Carlo."""
+    integrator = load_scene(str(rig.source), "llvm_ad_rgb")[3]
+    if integrator.control_variate == "none":
+        return None
+    return lambda: integrator_control_variate(m, pats.expand(m.batch_size, *pats.shape), rig, integrator)
+
+
+def main() -> None:
+    ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
+    ap.add_argument("--n", type=int, default=4)
+    ap.add_argument("--size", type=int, default=64)
+    ap.add_argument("--spp", type=int, default=4)
+    ap.add_argument("--repeats", type=int, default=7)
+    ap.add_argument("--out", type=Path, default=ROOT / "docs" / "benchmarks")
+    args = ap.parse_args()
+    m = procedural.generate(args.n, size=args.size, seed=123)
+    pats = pt.monograd()
+    load = OtherLoad()
+    rows = []
+    with tempfile.TemporaryDirectory() as work:
+        for name, rig in estimator_rigs(Path(work)).items():
+            def render():
+                ms.render(m, pats, rig, method="mitsuba", spp=args.spp, seed=1)
+
+            render()  # compiles
+            total = median_seconds(render, args.repeats)
+            cf = closed_form(m, pats, rig)
+            closed = median_seconds(cf, args.repeats) if cf is not None else 0.0
+            rows.append({"estimator": name, "seconds": round(total, 4), "closed_form_s": round(closed, 4),
+                         "monte_carlo_s": round(max(total - closed, 0.0), 4)})
+            print(rows[-1], flush=True)
+    plain = next(r["seconds"] for r in rows if r["estimator"] == "plain")
+    for r in rows:
+        r["ratio_to_plain"] = round(r["seconds"] / plain, 2)
+    text = (f"Command: `python benchmarks/cv_cost.py" + ("" if (args.n, args.size, args.spp) == (4, 64, 4) else
+                                                         f" --n {args.n} --size {args.size} --spp {args.spp}") + "`\n\n"
+            f"`generate({args.n}, size={args.size}, seed=123)` under MonoGrad at {args.spp} spp, "
+            f"{torch.get_num_threads()} threads; median of {args.repeats} renders (material cache cleared). "
+            f"{load.sentence()}\n\n"
+            "| estimator | s / render | closed form (s) | Monte Carlo and transfers (s) | x plain |\n"
+            "|---|---:|---:|---:|---:|\n" +
+            "\n".join(f"| {r['estimator']} | {r['seconds']} | {r['closed_form_s']} | {r['monte_carlo_s']} | "
+                      f"{r['ratio_to_plain']} |" for r in rows) + "\n")
+    print(text)
+    write_report(args.out, "cv_cost", "Closed form against Monte Carlo: the cost of each estimator", "cv_cost.py",
+                 text, rows)
+
+
+if __name__ == "__main__":
+    main()

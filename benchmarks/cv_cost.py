@@ -16,9 +16,7 @@ Writes docs/benchmarks/cv_cost.md (+ CSV).
 from __future__ import annotations
 
 import argparse
-import statistics
 import tempfile
-import time
 from pathlib import Path
 
 import torch
@@ -29,19 +27,9 @@ from mitsvbrdf.data import procedural
 from mitsvbrdf.render.control_variate import LAST_MATERIALS
 from mitsvbrdf.render.mitsuba import integrator_control_variate, load_scene
 from estimators import ESTIMATORS, estimator_rigs
-from report import OtherLoad, write_report
+from report import OtherLoad, median_seconds, write_report
 
 ROOT = Path(__file__).resolve().parent.parent
-
-
-def median_seconds(fn, repeats: int) -> float:
-    times = []
-    for _ in range(repeats):
-        LAST_MATERIALS.clear()
-        t = time.perf_counter()
-        fn()
-        times.append(time.perf_counter() - t)
-    return statistics.median(times)
 
 
 def closed_form(m: ms.SVBRDF, pats: torch.Tensor, rig: ms.Rig):
@@ -69,10 +57,9 @@ def main() -> None:
             def render():
                 ms.render(m, pats, rig, method="mitsuba", spp=args.spp, seed=1)
 
-            render()  # compiles
-            total = median_seconds(render, args.repeats)
+            total = median_seconds(render, args.repeats, before=LAST_MATERIALS.clear)  # warm-up compiles
             cf = closed_form(m, pats, rig)
-            closed = median_seconds(cf, args.repeats) if cf is not None else 0.0
+            closed = median_seconds(cf, args.repeats, before=LAST_MATERIALS.clear) if cf is not None else 0.0
             rows.append({"estimator": name, "seconds": round(total, 4), "closed_form_s": round(closed, 4),
                          "monte_carlo_s": round(max(total - closed, 0.0), 4)})
             print(rows[-1], flush=True)

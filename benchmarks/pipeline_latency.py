@@ -11,8 +11,6 @@ docs/benchmarks/pipeline_latency_cpu.md (+ CSV).
 from __future__ import annotations
 
 import argparse
-import statistics
-import time
 from pathlib import Path
 
 import torch
@@ -21,19 +19,9 @@ import mitsvbrdf as ms
 from mitsvbrdf.acquisition import DEFAULT_NETWORKS, load_adaptive, maps_to_svbrdf
 from mitsvbrdf.demo import DEFAULT_MATERIAL
 from mitsvbrdf.importance import importance
-from report import write_report
+from report import median_seconds, write_report
 
 ROOT = Path(__file__).resolve().parent.parent
-
-
-def median_seconds(fn, runs: int = 5) -> float:
-    fn()
-    times = []
-    for _ in range(runs):
-        t0 = time.perf_counter()
-        fn()
-        times.append(time.perf_counter() - t0)
-    return statistics.median(times)
 
 
 def main() -> None:
@@ -83,7 +71,7 @@ def lpdf_stride_tradeoff(pipe, i0: torch.Tensor, rig, strides=(1, 2, 4, 8, 16)) 
         rows = []
         for s in strides:
             lp = ref if s == 1 else importance(est.normal, est.roughness, rig, texel_stride=s)
-            secs = median_seconds(lambda: importance(est.normal, est.roughness, rig, texel_stride=s), runs=3)
+            secs = median_seconds(lambda: importance(est.normal, est.roughness, rig, texel_stride=s), repeats=3)
             pats = pipe.lighting(i0, lp).patterns
             rows.append({"stride": s, "seconds": round(secs, 3),
                          "lpdf_rel_rmse": round(float((lp - ref).square().mean().sqrt() / ref.square().mean().sqrt()), 4),

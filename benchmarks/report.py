@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import csv
 import os
+import statistics
 import time
 from pathlib import Path
 
@@ -58,3 +59,18 @@ def write_csv(path: Path, rows: list[dict]) -> None:
         w = csv.DictWriter(f, fieldnames=list(rows[0]))
         w.writeheader()
         w.writerows(rows)
+
+
+def median_seconds(fn, repeats: int = 5, *, warmup: bool = True, before=None) -> float:
+    """Median wall time of ``repeats`` calls of ``fn`` (after one untimed call with ``warmup``);
+    ``before()``, when given, runs untimed ahead of every call (e.g. clearing a cache)."""
+    if warmup:
+        fn()
+    times = []
+    for _ in range(repeats):
+        if before is not None:
+            before()
+        t0 = time.perf_counter()
+        fn()
+        times.append(time.perf_counter() - t0)
+    return statistics.median(times)

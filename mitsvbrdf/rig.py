@@ -152,7 +152,7 @@ def texel_grid(resolution: int | tuple[int, int]) -> tuple[int, int]:
     return int(h), int(w)
 
 
-def per_texel(rig: "Rig", resolution: tuple[int, int], compute, dim: int):
+def per_texel(rig: "Rig", resolution: int | tuple[int, int], compute, dim: int):
     """``compute(rig, resolution)``, a tensor (or tuple of tensors) of per-texel geometry with the
     texels row-major along ``dim``; for a window (:meth:`Rig.window_texels`) the window's rows of
     ``compute(parent, (grid, grid))``, so that a cache inside ``compute`` keyed on the rig keeps
@@ -160,7 +160,7 @@ def per_texel(rig: "Rig", resolution: tuple[int, int], compute, dim: int):
     are the parent's texels (same positions, view directions, LCD and display)."""
     win = rig.window_texels(resolution)
     if win is None:
-        return compute(rig, tuple(resolution))
+        return compute(rig, texel_grid(resolution))
     parent, grid, idx = win
     full = compute(parent, (grid, grid))
     if isinstance(full, tuple):
@@ -283,8 +283,7 @@ class Rig:
         if self.window_of is None:
             return None
         parent, grid, top, left, size = self.window_of
-        H, W = (resolution, resolution) if isinstance(resolution, int) else tuple(resolution)
-        if (H, W) != (size, size) or not _same_rig(self, dataclasses.replace(parent, window_of=None).window(
+        if texel_grid(resolution) != (size, size) or not _same_rig(self, dataclasses.replace(parent, window_of=None).window(
                 grid, top, left, size)):
             return None
         rows = torch.arange(top, top + size).view(-1, 1) * grid

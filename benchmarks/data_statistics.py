@@ -102,7 +102,7 @@ DARK_METALS = 0.25
 def pure_metal_row(name: str, m: SVBRDF) -> dict | None:
     """Histogram (fractions over :data:`EDGES` ``"ks"``) of the specular albedo's RGB mean on the
     texels of ``m`` without diffuse, and their share of all texels; None when it has none."""
-    metal = (m.diffuse.amax(dim=1) <= 0).reshape(-1)
+    metal = procedural.pure_metal_texels(m.diffuse).reshape(-1)
     if not bool(metal.any()):
         return None
     ks = m.specular.mean(dim=1).reshape(-1)[metal]

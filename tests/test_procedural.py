@@ -168,15 +168,10 @@ def test_a_degenerate_bump_range_is_its_one_value():
                                generate(3, size=16, seed=5, bump=2.0).normal)
 
 
-def _pure_metal_texels(m: ms.SVBRDF) -> torch.Tensor:
-    """(B, 1, H, W): texels without diffuse, the ones ``dark_metals`` darkens."""
-    return m.diffuse.amax(dim=1, keepdim=True) <= 0
-
-
 def test_dark_metals_scale_only_the_f0_of_pure_metal_texels_by_the_materials_own_factor():
     base = generate(36, size=16, seed=6)
     dark = generate(36, size=16, seed=6, dark_metals=1.0)
-    metal = _pure_metal_texels(base)
+    metal = procedural.pure_metal_texels(base.diffuse)
     factors = torch.tensor([procedural.metal_dimming(i, 6, 1.0) for i in range(36)]).view(-1, 1, 1, 1)
     lo, hi = procedural.DARK_METAL_F0
     assert bool(((factors >= lo) & (factors <= hi)).all())
@@ -202,7 +197,7 @@ def test_dark_metals_darken_about_their_fraction_of_materials():
 def test_dark_metals_reach_the_f0_of_the_dataset_metal_that_no_palette_metal_reaches():
     # 2_svbrdf: kd = 0, F0 (RGB mean) 0.05-0.17; undarkened pure metals stay above 0.25.
     def pure_metal_f0(m: ms.SVBRDF) -> torch.Tensor:
-        return m.specular.mean(dim=1, keepdim=True)[_pure_metal_texels(m)]
+        return m.specular.mean(dim=1, keepdim=True)[procedural.pure_metal_texels(m.diffuse)]
 
     plain, dark = generate(72, size=16, seed=0), generate(72, size=16, seed=0, dark_metals=1.0)
     assert float(pure_metal_f0(plain).min()) > 0.25

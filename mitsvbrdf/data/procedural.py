@@ -874,6 +874,12 @@ def metal_dimming(index: int, seed: int, dark_metals: float) -> float:
     return d.logu(*DARK_METAL_F0) if d.p(dark_metals) else 1.0
 
 
+def pure_metal_texels(kd: Tensor) -> Tensor:
+    """(B, 1, H, W) bool: the texels of diffuse albedo ``kd`` (B, 3, H, W) without any diffuse,
+    the pure metal that ``dark_metals`` darkens."""
+    return kd.amax(dim=1, keepdim=True) <= 0
+
+
 def check_dark_metals(dark_metals: float) -> float:
     """``dark_metals`` validated: a probability in [0, 1]."""
     if isinstance(dark_metals, bool) or not isinstance(dark_metals, (int, float)) \
@@ -1020,8 +1026,8 @@ def _finish(lay: Layers, relief: Tensor, size: int, saturation: Tensor | None = 
     if saturation is not None and bool((saturation != 1).any()):
         kd, ks = _saturate(kd, saturation), _saturate(ks, saturation)
     if dimming is not None and bool((dimming != 1).any()):
-        pure_metal = kd.amax(dim=1, keepdim=True) <= 0  # after saturation, which keeps kd = 0 at 0
-        ks = torch.where(pure_metal, ks * dimming.view(-1, 1, 1, 1), ks)
+        # after saturation, which keeps kd = 0 at 0
+        ks = torch.where(pure_metal_texels(kd), ks * dimming.view(-1, 1, 1, 1), ks)
     return {"normal": normal, "diffuse": kd.clamp(0.0, 1.0),
             "roughness": rough.clamp(ROUGHNESS_MIN, 1.0), "specular": ks.clamp(0.0, 1.0)}
 

@@ -6,16 +6,15 @@
 Sets: the demo's bundled material, the 4 sample materials ($MITSVBRDF_SAMPLES) and ``--n``
 held-out procedural materials (seeds from 1 000 000, never trained on). At each size every
 material's acquisition is simulated (Mitsuba at ``--spp``, seed 0) and reconstructed in each
-transfer mode of :mod:`mitsvbrdf.resolution` (native, coarse, fused; each mode predicts its own
+transfer mode of :mod:`mitsvbrdf.resolution` (native, coarse, fused, pyramid; each mode predicts its own
 patterns, as it would at the bench). The row "at R px" is the same materials resized to the
 networks' own training grid and reconstructed there, scored at R: what the networks do where
 they trained.
 
 Per set, size and mode: the mean RMSE of each encoded map and their average, the flat-normal
 level (predicting n = +z) and seconds per material; then the paired per-material difference of
-the average and normal RMSE of fused and coarse against native (mean +- standard error). The
-figure shows the demo material's normal maps at the largest size: ground truth, native, coarse,
-fused. Writes docs/benchmarks/resolution_transfer.md (+ CSV, PNG).
+the average and normal RMSE of every other mode against native (mean +- standard error). The
+figure shows the demo material's normal maps at the largest size: ground truth, then each mode. Writes docs/benchmarks/resolution_transfer.md (+ CSV, PNG).
 """
 
 from __future__ import annotations
@@ -128,7 +127,7 @@ def main() -> None:
     for size in sizes:
         for set_name in dict.fromkeys(r["set"] for r in per_material):
             sel = [r for r in per_material if r["set"] == set_name and r["size"] == size]
-            for mode in ("coarse", "fused"):
+            for mode in TRANSFER_MODES[1:]:
                 diff.append(f"| {set_name} | {size} | {mode} | {paired(sel, mode, 'native', 'average')} | "
                             f"{paired(sel, mode, 'native', 'normal')} |")
     net = args.networks.relative_to(ROOT) if args.networks.is_relative_to(ROOT) else args.networks
@@ -139,8 +138,8 @@ def main() -> None:
             "row of each size (the demo material, native) includes Dr.Jit's kernel compilation for that size.\n\n" +
             "\n".join(lines) + "\n\nPaired per-material differences against native (mean +- standard error; "
             "negative: better than native):\n\n" + "\n".join(diff) +
-            "\n\nNormal maps of the demo material at the largest size (encoded: ground truth, native, coarse, "
-            "fused):\n\n![normals](resolution_transfer.png)\n")
+            "\n\nNormal maps of the demo material at the largest size (encoded: ground truth, then "
+            f"{', '.join(TRANSFER_MODES)}):\n\n![normals](resolution_transfer.png)\n")
     print(text)
     write_report(args.out, "resolution_transfer", "Resolution transfer: reconstructing finer captures than the "
                  "networks trained on", "resolution_transfer.py", text, rows)

@@ -280,7 +280,7 @@ class AdaptiveAcquisition(torch.nn.Module):
         rig: the capture rig (L_pdf and the separation need its geometry and display model).
         settings: how the networks were trained (:class:`AcquisitionSettings`).
         transfer: how a capture finer than ``settings.resolution`` is reconstructed: "fused"
-            (default), "coarse" or "native" (:mod:`mitsvbrdf.resolution`).
+            (default), "pyramid", "coarse" or "native" (:mod:`mitsvbrdf.resolution`).
     """
 
     def __init__(self, l0: Tensor, initializer: torch.nn.Module, lighting: torch.nn.Module,

@@ -25,8 +25,18 @@ Modes (:data:`TRANSFER_MODES`) for a capture on an H x W grid finer than the net
   with ``down`` the area average to R x R and ``up`` the bilinear upsampling to H x W. What the
   networks were trained to see comes from the coarse run; from the native run only the detail the
   coarse grid cannot hold. The normal is renormalised when the maps are decoded.
+* ``"pyramid"``: "fused" over every octave (:func:`octave_grids`): G_sc runs on the capture
+  area-averaged to R, 2R, 4R, ... up to H x W, and each grid adds only the octave the one below it
+  cannot hold::
 
-In "coarse" and "fused" the initializer and G_l predict from the area-averaged I_0 as well (the
+      M_0 = M_R,    M_l = up(M_{l-1}) + (M_{2^l R} - up(down(M_{2^l R}))),
+
+  so every band comes from the grid where its structures are closest to the size the networks
+  learned them at (in "fused", the octave between R and 2R comes from the full grid, where it spans
+  H / R times more texels than in training). One more G_sc run per octave, on smaller grids than
+  the full one.
+
+In "coarse", "fused" and "pyramid" the initializer and G_l predict from the area-averaged I_0 as well (the
 patterns live on the LCD's grid, the same for any texel grid), and the initializer's estimate is
 upsampled to H x W. A capture averaged over coarse texels is not exactly a capture of the
 averaged maps (shading is not linear in them); the networks trained on the latter.
@@ -50,7 +60,7 @@ from .errors import MitsvbrdfError
 from .svbrdf import resample_texels
 
 #: How networks trained on one texel grid meet a finer capture (module docstring).
-TRANSFER_MODES = ("native", "coarse", "fused")
+TRANSFER_MODES = ("native", "coarse", "fused", "pyramid")
 
 #: The mode acquisitions use unless told otherwise.
 DEFAULT_TRANSFER = "fused"
@@ -77,6 +87,16 @@ def working_grid(shape: tuple[int, int], trained: int | None) -> tuple[int, int]
     return min(h, trained), min(w, trained)
 
 
+def octave_grids(shape: tuple[int, int], trained: int | None) -> list[tuple[int, int]]:
+    """The texel grids of mode "pyramid" for an H x W capture, coarsest first: the working grid,
+    then each axis doubled (capped at the capture's) until the capture's own grid."""
+    full = (int(shape[0]), int(shape[1]))
+    grids = [working_grid(full, trained)]
+    while grids[-1] != full:
+        grids.append(tuple(min(2 * g, f) for g, f in zip(grids[-1], full)))
+    return grids
+
+
 def fuse_bands(coarse: Tensor, fine: Tensor) -> Tensor:
     """Low band of ``coarse`` (B, C, h, w), high band of ``fine`` (B, C, H, W) -> (B, C, H, W):
     up(coarse) + fine - up(down(fine)) (module docstring)."""
@@ -97,11 +117,15 @@ def reconstruct_across(run: Callable[[Tensor], Tensor], images: Tensor, trained:
     coarse = run(resample_texels(images, grid))
     if mode == "coarse":
         return resample_texels(coarse, full)
-    return fuse_bands(coarse, run(images))
+    if mode == "fused":
+        return fuse_bands(coarse, run(images))
+    for g in octave_grids(full, trained)[1:]:
+        coarse = fuse_bands(coarse, run(images if g == full else resample_texels(images, g)))
+    return coarse
 
 
 def prediction_input(image: Tensor, trained: int | None, mode: str = DEFAULT_TRANSFER) -> Tensor:
     """What the initializer and G_l predict from: ``image`` (B, 3, H, W) area-averaged to the
-    working grid in "coarse" and "fused", as it is in "native"."""
+    working grid in "coarse", "fused" and "pyramid", as it is in "native"."""
     check_transfer(mode)
     return image if mode == "native" else resample_texels(image, working_grid(tuple(image.shape[-2:]), trained))

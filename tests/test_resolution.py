@@ -4,7 +4,8 @@ import pytest
 import torch
 
 from mitsvbrdf.errors import MitsvbrdfError
-from mitsvbrdf.resolution import TRANSFER_MODES, check_transfer, prediction_input, reconstruct_across, working_grid
+from mitsvbrdf.resolution import (TRANSFER_MODES, check_transfer, octave_grids, prediction_input, reconstruct_across,
+                                  working_grid)
 from mitsvbrdf.svbrdf import resample_texels
 
 # float32 sums of a few texels: a few units in the last place of values near 1
@@ -28,10 +29,10 @@ def test_an_unknown_training_resolution_keeps_the_capture_grid():
 
 
 def test_bad_modes_are_refused():
-    with pytest.raises(MitsvbrdfError, match="transfer must be one of native, coarse, fused"):
+    with pytest.raises(MitsvbrdfError, match="transfer must be one of native, coarse, fused, pyramid"):
         check_transfer("tiled")
     with pytest.raises(MitsvbrdfError):
-        reconstruct_across(per_texel, torch.rand(1, 5, 3, 8, 8), 4, "pyramid")
+        reconstruct_across(per_texel, torch.rand(1, 5, 3, 8, 8), 4, "tiled")
 
 
 @pytest.mark.parametrize("mode", TRANSFER_MODES)
@@ -75,8 +76,47 @@ def test_fused_mode_takes_the_low_band_from_the_training_grid():
     assert torch.allclose(out, per_texel(images) + 0.25, atol=EPS)
 
 
+def test_the_octave_grids_double_from_the_working_grid_to_the_capture():
+    assert octave_grids((256, 256), 64) == [(64, 64), (128, 128), (256, 256)]
+    assert octave_grids((192, 64), 32) == [(32, 32), (64, 64), (128, 64), (192, 64)]
+    assert octave_grids((32, 32), 64) == [(32, 32)]
+
+
+def test_pyramid_mode_runs_the_networks_once_on_every_octave():
+    images = torch.rand(1, 5, 3, 32, 32)
+    calls = []
+    reconstruct_across(lambda x: calls.append(tuple(x.shape[-2:])) or per_texel(x), images, 8, "pyramid")
+    assert calls == [(8, 8), (16, 16), (32, 32)]
+
+
+def test_pyramid_mode_gives_a_grid_independent_network_its_own_maps():
+    images = torch.rand(1, 5, 3, 32, 32)
+    out = reconstruct_across(per_texel, images, 8, "pyramid")
+    assert torch.allclose(out, per_texel(images), atol=EPS)
+
+
+def test_pyramid_mode_takes_each_octave_from_its_own_grid():
+    # a network that adds a per-grid offset: only the training grid's reaches the low band, and the
+    # finer grids' offsets (constant, no detail above their octave) vanish from the result
+    images = torch.rand(1, 5, 3, 32, 32)
+    offset = {8: 0.25, 16: -0.5, 32: 1.0}
+    out = reconstruct_across(lambda x: per_texel(x) + offset[x.shape[-1]], images, 8, "pyramid")
+    assert torch.allclose(out, per_texel(images) + 0.25, atol=EPS)
+
+
+def test_pyramid_mode_takes_the_middle_octave_from_the_middle_grid():
+    # detail only the 16 px run sees (a checkerboard at its texel pitch, which the 8 px grid
+    # averages away) is its octave: it reaches the result whole, upsampled to the capture's grid
+    images = torch.zeros(1, 5, 3, 32, 32)
+    checker = (torch.arange(16)[:, None] + torch.arange(16)[None]) % 2 - 0.5
+    run = lambda x: per_texel(x) + (checker if x.shape[-1] == 16 else 0.0)  # noqa: E731
+    out = reconstruct_across(run, images, 8, "pyramid")
+    want = resample_texels(checker.expand(1, 3, 16, 16), (32, 32))
+    assert torch.allclose(out, want, atol=EPS)
+
+
 def test_patterns_are_predicted_from_the_area_averaged_first_image():
     i0 = torch.rand(2, 3, 32, 32)
     assert prediction_input(i0, 8, "native") is i0
-    for mode in ("coarse", "fused"):
+    for mode in ("coarse", "fused", "pyramid"):
         assert torch.allclose(prediction_input(i0, 8, mode), resample_texels(i0, (8, 8)))

@@ -63,7 +63,7 @@ def test_mitsuba_puts_the_sample_back_after_a_window(rig, whole, window):
 
 def test_mitsuba_renders_a_new_window_with_the_compiled_kernels(rig, whole):
     # Training draws a new window every step: a window must not compile new kernels (it did while
-    # the sample's transform went into the kernels as literals: ~0.4 s a step at 64 px).
+    # the sample's transform went into the kernels as literals).
     import drjit as dr
 
     def render_at(top, left):

@@ -64,7 +64,7 @@ def _place_sample(params, rig: Rig) -> None:
     if not np.array_equal(np.array(have.matrix.numpy(), dtype=np.float32).reshape(4, 4), want.astype(np.float32)):
         placed = type(have)(want.tolist())
         # Opaque: as literals the matrix entries were compiled into the render kernel, and every
-        # new window of a training run compiled it again (~0.4 s of a 0.1 s render at 64 px).
+        # new window of a training run compiled it again (several renders' time each).
         dr.make_opaque(placed)
         params["sample.to_world"] = placed
         params.update()

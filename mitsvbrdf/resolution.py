@@ -5,9 +5,9 @@ materials learned texels of pitch s / R. A U-Net sees a fixed number of texels a
 texel, so on a 256 x 256 capture of the same sample every structure spans 256 / R times more
 texels than in training. The low-frequency cues of the normals (a tilted region shades all five
 images alike, only its neighbourhood tells tilt from albedo) then fall outside what the networks
-see. The shipped networks (R = 64) bring the sample materials' normal RMSE a third below the
-flat-normal level at 64 px (0.067 against 0.105), but only a tenth below it on a 256 px capture
-(0.104 against 0.114); reconstructed across the grids ("fused"), 0.076
+see. The shipped networks (R = 64) bring the sample materials' normal RMSE to half the
+flat-normal level at 64 px (0.055 against 0.105), but only a fifth below it on a 256 px capture
+(0.091 against 0.114); reconstructed across the grids ("fused"), 0.063
 (``benchmarks/resolution_transfer.py``, docs/benchmarks/resolution_transfer.md).
 
 Modes (:data:`TRANSFER_MODES`) for a capture on an H x W grid finer than the networks' R x R
@@ -41,10 +41,13 @@ patterns live on the LCD's grid, the same for any texel grid), and the initializ
 upsampled to H x W. A capture averaged over coarse texels is not exactly a capture of the
 averaged maps (shading is not linear in them); the networks trained on the latter.
 
-Measured (the same document): "fused" is the best or level with the best on every set at 128 and
-256 px. "coarse" is as good on the sample materials but worse than "native" on the procedural
-ones, whose fine relief it drops; "native" is as good as "fused" on the procedural materials at
-128 px only.
+Measured at 256 px with chain 8's networks (the same document; average map RMSE, paired
+against "native"): "fused" is better on the demo and sample materials (-0.027, -0.019 +- 0.007)
+and level on 32 procedural ones (-0.004 +- 0.003). "coarse" is as good on the sample materials
+but worse on the procedural ones (+0.012 +- 0.006), whose fine relief it drops. "pyramid" is
+level with "fused" everywhere (0.0551 against 0.0558 on the samples, 0.0491 against 0.0486 on
+the procedural materials, 0.0362 against 0.0360 on the demo material), so the default stays the
+cheaper "fused".
 
 Rejected: reconstructing tile by tile at the native pitch (the tiles are the training size in
 texels but a sixteenth of the sample: the same loss of context, with seams).

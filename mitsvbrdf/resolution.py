@@ -117,14 +117,13 @@ def reconstruct_across(run: Callable[[Tensor], Tensor], images: Tensor, trained:
     grid = working_grid(full, trained)
     if mode == "native" or grid == full:
         return run(images)
-    coarse = run(resample_texels(images, grid))
+    maps = run(resample_texels(images, grid))
     if mode == "coarse":
-        return resample_texels(coarse, full)
-    if mode == "fused":
-        return fuse_bands(coarse, run(images))
-    for g in octave_grids(full, trained)[1:]:
-        coarse = fuse_bands(coarse, run(images if g == full else resample_texels(images, g)))
-    return coarse
+        return resample_texels(maps, full)
+    finer = octave_grids(full, trained)[1:] if mode == "pyramid" else [full]  # "fused": one step to the capture
+    for g in finer:
+        maps = fuse_bands(maps, run(images if g == full else resample_texels(images, g)))
+    return maps
 
 
 def prediction_input(image: Tensor, trained: int | None, mode: str = DEFAULT_TRANSFER) -> Tensor:

@@ -50,3 +50,17 @@ def textured_material(size: int = 16, seed: int = 0, roughness=(0.05, 0.8)):
     return ms.SVBRDF(normal=n, diffuse=torch.rand(1, 3, size, size, generator=g),
                      roughness=lo + (hi - lo) * torch.rand(1, 1, size, size, generator=g),
                      specular=0.02 + 0.5 * torch.rand(1, 3, size, size, generator=g))
+
+
+def jit_kernels_of(fn) -> list[dict]:
+    """Dr.Jit's records of the JIT kernels that ``fn()`` launched (each with ``cache_hit``): a
+    kernel it had to compile has ``cache_hit`` false."""
+    import drjit as dr
+
+    dr.set_flag(dr.JitFlag.KernelHistory, True)
+    dr.kernel_history()  # clear
+    try:
+        fn()
+        return [k for k in dr.kernel_history() if k.get("type") == dr.KernelType.JIT]
+    finally:
+        dr.set_flag(dr.JitFlag.KernelHistory, False)

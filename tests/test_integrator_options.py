@@ -21,7 +21,7 @@ from mitsvbrdf.errors import SceneError
 from mitsvbrdf.render.control_variate import LAST_MATERIALS, control_variate
 from mitsvbrdf.rig import DEFAULT_SCENE
 
-from conftest import flat_material, textured_material
+from conftest import flat_material, jit_kernels_of, textured_material
 
 pytestmark = pytest.mark.mitsuba
 if backend.find_libllvm() is None:  # pragma: no cover - depends on the machine
@@ -284,15 +284,10 @@ def test_all_patterns_and_materials_in_one_pass_equal_separate_renders(rigs, opt
 
 @pytest.mark.parametrize("option", ["ltc-cv", "ltc-cells", "plain"])
 def test_new_data_and_seed_reuse_the_compiled_kernels(rigs, option):
-    import drjit as dr
     rig = rigs[(option, "plain-display")]
     m1, m2 = textured_material(8, seed=1), textured_material(8, seed=2)
     ms.render(m1, pt.random(n=2, seed=1), rig, method="mitsuba", spp=4, seed=0)
-    dr.set_flag(dr.JitFlag.KernelHistory, True)
-    dr.kernel_history()  # clear
-    ms.render(m2, pt.random(n=2, seed=2), rig, method="mitsuba", spp=4, seed=5)
-    hist = [k for k in dr.kernel_history() if k.get("type") == dr.KernelType.JIT]
-    dr.set_flag(dr.JitFlag.KernelHistory, False)
+    hist = jit_kernels_of(lambda: ms.render(m2, pt.random(n=2, seed=2), rig, method="mitsuba", spp=4, seed=5))
     assert hist and all(k["cache_hit"] for k in hist)
 
 

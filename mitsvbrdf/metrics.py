@@ -14,9 +14,10 @@ import numpy as np
 import torch
 from torch import Tensor
 
-from .svbrdf import SVBRDF
+from .svbrdf import ENCODED_SLICES, SVBRDF
 
-MAP_CHANNELS = {"normal": slice(0, 3), "diffuse": slice(3, 6), "roughness": slice(6, 7), "specular": slice(7, 10)}
+#: Each map's channels in the encoded maps the metrics compare.
+MAP_CHANNELS = ENCODED_SLICES
 
 
 def _check_pair(pred: SVBRDF, gt: SVBRDF) -> None:

@@ -80,6 +80,9 @@ MAP_NAMES = ("normal", "diffuse", "roughness", "specular")
 MAP_CHANNELS = {"normal": 3, "diffuse": 3, "roughness": 1, "specular": 3}
 #: Channels of the encoded form.
 ENCODED_CHANNELS = 10
+#: Each map's channels in the encoded form (the maps in :data:`MAP_NAMES` order).
+ENCODED_SLICES = {k: slice(sum(MAP_CHANNELS[m] for m in MAP_NAMES[:i]), sum(MAP_CHANNELS[m] for m in MAP_NAMES[:i + 1]))
+                  for i, k in enumerate(MAP_NAMES)}
 
 RANGE_TOL = 1e-4            # maps may exceed [0, 1] by this much (float round-off)
 NORMAL_TOL = 1e-3           # in-memory normals: | |n| - 1 | allowed
@@ -152,6 +155,23 @@ def resample_texels(t: Tensor, size: tuple[int, int]) -> Tensor:
         x = torch.nn.functional.interpolate(x, size=(h, w), mode="area")
     else:
         x = torch.nn.functional.interpolate(x, size=(h, w), mode="bilinear", align_corners=False)
+    return x.reshape(*lead, *x.shape[-3:])
+
+
+def sample_texel_centres(t: Tensor, size: tuple[int, int]) -> Tensor:
+    """``(..., C, H, W)`` -> ``(..., C, h, w)``, h <= H and w <= W: ``t`` at the centres of the
+    coarser grid's texels, bilinear between the four texels nearest each centre (a grid 4x
+    coarser: the mean of each block's central 2 x 2 texels; 2x coarser: the block's mean, as in
+    :func:`resample_texels`). Where :func:`resample_texels` gives a coarse texel of a capture the
+    radiance mixed over its whole area, this keeps the radiance of a small patch at its centre."""
+    h, w = size
+    if h > t.shape[-2] or w > t.shape[-1]:
+        raise ValueError(f"sample_texel_centres samples a coarser grid; got {tuple(t.shape[-2:])} -> {(h, w)}")
+    if tuple(t.shape[-2:]) == (h, w):
+        return t
+    lead = t.shape[:-3]
+    x = torch.nn.functional.interpolate(t.reshape(-1, *t.shape[-3:]), size=(h, w), mode="bilinear",
+                                        align_corners=False, antialias=False)
     return x.reshape(*lead, *x.shape[-3:])
 
 

@@ -14,9 +14,8 @@ Modes (:data:`TRANSFER_MODES`) for a capture on an H x W grid finer than the net
 (:func:`working_grid`; an axis at or below R is kept):
 
 * ``"native"``: every network runs on the capture as it is (the behaviour before this module).
-* ``"coarse"``: the capture is area-averaged to the working grid (:func:`resample_texels`: each
-  coarse texel's mean radiance, what a camera with that many pixels records), the networks run
-  there, as in training, and the maps are upsampled bilinearly. No detail finer than s / R.
+* ``"coarse"``: the networks' maps on the working grid (:func:`grid_maps`, below), upsampled
+  bilinearly. No detail finer than s / R.
 * ``"fused"`` (default): G_sc runs on both grids and the encoded maps keep the coarse run's low
   band and the native run's high band, a two-level Laplacian pyramid::
 
@@ -25,8 +24,10 @@ Modes (:data:`TRANSFER_MODES`) for a capture on an H x W grid finer than the net
   with ``down`` the area average to R x R and ``up`` the bilinear upsampling to H x W. What the
   networks were trained to see comes from the coarse run; from the native run only the detail the
   coarse grid cannot hold. The normal is renormalised when the maps are decoded.
+* ``"fused-area"``: "fused" with every map of M_R from the area-averaged capture (the default
+  until roughness came from the texel centres, below; kept to measure against).
 * ``"pyramid"``: "fused" over every octave (:func:`octave_grids`): G_sc runs on the capture
-  area-averaged to R, 2R, 4R, ... up to H x W, and each grid adds only the octave the one below it
+  brought to R, 2R, 4R, ... up to H x W, and each grid adds only the octave the one below it
   cannot hold::
 
       M_0 = M_R,    M_l = up(M_{l-1}) + (M_{2^l R} - up(down(M_{2^l R}))),
@@ -36,18 +37,28 @@ Modes (:data:`TRANSFER_MODES`) for a capture on an H x W grid finer than the net
   H / R times more texels than in training). One more G_sc run per octave, on smaller grids than
   the full one.
 
-In "coarse", "fused" and "pyramid" the initializer and G_l predict from the area-averaged I_0 as well (the
-patterns live on the LCD's grid, the same for any texel grid), and the initializer's estimate is
-upsampled to H x W. A capture averaged over coarse texels is not exactly a capture of the
-averaged maps (shading is not linear in them); the networks trained on the latter.
+The maps on a coarser grid (:func:`grid_maps`) come from the capture area-averaged to it (each
+coarse texel's mean radiance, :func:`~mitsvbrdf.svbrdf.resample_texels`, what a camera with that
+many pixels records), except the roughness, which comes from a second run on the capture sampled
+at the coarse texels' centres (:func:`~mitsvbrdf.svbrdf.sample_texel_centres`; at 4x, the mean of
+each block's central 2 x 2 texels). The networks trained on materials constant over each texel; a
+coarse texel of a finer material mixes the reflections of differently tilted sub-texels, which
+widens a glossy highlight as a rougher surface would (Toksvig's effect): from the area average the
+networks read the roughness too high wherever the relief is finer than their grid. Sampled at the
+centres, each coarse texel sees a quarter of its sub-texels; the other maps stay on the area
+average, into which the centres would alias fine albedo and relief.
+``benchmarks/roughness_bias.py`` (docs/benchmarks/roughness_bias.md; chain 9, 16 procedural 256 px
+materials outside the test seeds) measures it: on smooth materials (mean roughness < 0.3) the
+roughness bias is +0.116 from the area average, +0.055 from the centres and +0.016 for the same
+materials reconstructed at 64 px; on rough ones the centres overshoot the other way (-0.037
+against -0.001), and over all 16 the roughness RMSE is 0.086 against 0.106 (average map RMSE
+0.0471 against 0.0521). Rejected there: narrowing alpha^2 by the slope variance of the
+reconstructed normals within each coarse texel (Toksvig's widening inverted; roughness RMSE
+0.119): the networks do not read roughness as that model does, and it overshoots on smooth and
+rough materials alike.
 
-Measured at 256 px with chain 8's networks (the same document; average map RMSE, paired
-against "native"): "fused" is better on the demo and sample materials (-0.027, -0.019 +- 0.007)
-and level on 32 procedural ones (-0.004 +- 0.003). "coarse" is as good on the sample materials
-but worse on the procedural ones (+0.012 +- 0.006), whose fine relief it drops. "pyramid" is
-level with "fused" everywhere (0.0551 against 0.0558 on the samples, 0.0491 against 0.0486 on
-the procedural materials, 0.0362 against 0.0360 on the demo material), so the default stays the
-cheaper "fused".
+In every mode but "native" the initializer and G_l predict from the area-averaged I_0 (the
+patterns live on the LCD's grid, the same for any texel grid), and the initializer's estimate is upsampled to H x W.
 
 Rejected: reconstructing tile by tile at the native pitch (the tiles are the training size in
 texels but a sixteenth of the sample: the same loss of context, with seams).
@@ -57,21 +68,23 @@ from __future__ import annotations
 
 from typing import Callable
 
+import torch
 from torch import Tensor
 
 from .errors import MitsvbrdfError
-from .svbrdf import resample_texels
+from .svbrdf import ENCODED_SLICES, resample_texels, sample_texel_centres
 
 #: How networks trained on one texel grid meet a finer capture (module docstring).
-TRANSFER_MODES = ("native", "coarse", "fused", "pyramid")
+TRANSFER_MODES = ("native", "coarse", "fused", "fused-area", "pyramid")
 
 #: The mode acquisitions use unless told otherwise.
 DEFAULT_TRANSFER = "fused"
 
 #: The command-line help of every ``--transfer`` option.
 TRANSFER_HELP = ("how a capture finer than the networks' training grid is reconstructed: fused (default: the "
-                 "training grid's maps, the capture's own detail on top), coarse (the training grid's maps, "
-                 "upsampled) or native (the networks on the capture as it is)")
+                 "training grid's maps, the capture's own detail on top), pyramid (the same over every octave), "
+                 "coarse (the training grid's maps, upsampled), native (the networks on the capture as it is) or "
+                 "fused-area (fused with the roughness from the area-averaged capture too)")
 
 
 def check_transfer(mode: str) -> str:
@@ -107,22 +120,37 @@ def fuse_bands(coarse: Tensor, fine: Tensor) -> Tensor:
     return resample_texels(coarse, size) + fine - resample_texels(resample_texels(fine, tuple(coarse.shape[-2:])), size)
 
 
+def grid_maps(run: Callable[[Tensor], Tensor], images: Tensor, grid: tuple[int, int],
+              centred_roughness: bool = True) -> Tensor:
+    """The (B, 10, h, w) encoded maps of ``run`` for a capture ``images`` (B, P, 3, H, W) brought to
+    the coarser ``grid`` (h, w): from the area-averaged capture, with the roughness from the capture
+    sampled at the grid's texel centres where ``centred_roughness`` and that differs from the area
+    average (a grid more than 2x coarser; module docstring)."""
+    maps = run(resample_texels(images, grid))
+    if not centred_roughness or all(2 * g >= f for g, f in zip(grid, images.shape[-2:])):
+        return maps
+    r = ENCODED_SLICES["roughness"]
+    centred = run(sample_texel_centres(images, grid))
+    return torch.cat([maps[:, :r.start], centred[:, r], maps[:, r.stop:]], dim=1)
+
+
 def reconstruct_across(run: Callable[[Tensor], Tensor], images: Tensor, trained: int | None,
                        mode: str = DEFAULT_TRANSFER) -> Tensor:
-    """``run(images (B, P, 3, h, w)) -> (B, C, h, w)`` maps, applied to a capture ``images``
-    (B, P, 3, H, W) in ``mode`` for networks trained at ``trained`` texels a side. Returns
-    (B, C, H, W). On the networks' own grid (or in "native") it is ``run(images)``."""
+    """``run(images (B, P, 3, h, w)) -> (B, 10, h, w)`` encoded maps, applied to a capture
+    ``images`` (B, P, 3, H, W) in ``mode`` for networks trained at ``trained`` texels a side.
+    Returns (B, 10, H, W). On the networks' own grid (or in "native") it is ``run(images)``."""
     check_transfer(mode)
     full = tuple(images.shape[-2:])
     grid = working_grid(full, trained)
     if mode == "native" or grid == full:
         return run(images)
-    maps = run(resample_texels(images, grid))
+    centred = mode != "fused-area"
+    maps = grid_maps(run, images, grid, centred)
     if mode == "coarse":
         return resample_texels(maps, full)
     finer = octave_grids(full, trained)[1:] if mode == "pyramid" else [full]  # "fused": one step to the capture
     for g in finer:
-        maps = fuse_bands(maps, run(images if g == full else resample_texels(images, g)))
+        maps = fuse_bands(maps, run(images) if g == full else grid_maps(run, images, g, centred))
     return maps
 
 

@@ -6,16 +6,32 @@ import torch
 from mitsvbrdf.errors import MitsvbrdfError
 from mitsvbrdf.resolution import (TRANSFER_MODES, check_transfer, octave_grids, prediction_input, reconstruct_across,
                                   working_grid)
-from mitsvbrdf.svbrdf import resample_texels
+from mitsvbrdf.svbrdf import ENCODED_SLICES, resample_texels, sample_texel_centres
 
 # float32 sums of a few texels: a few units in the last place of values near 1
 EPS = 1e-6
+ROUGH = ENCODED_SLICES["roughness"]
+NOT_ROUGH = [c for c in range(10) if c != ROUGH.start]
 
 
 def per_texel(images):
-    """A stand-in G_sc that is one linear map per texel (the mean over the patterns): it gives the
-    same maps whatever the grid, so every mode must reproduce what it gives on the capture."""
-    return images.mean(1)
+    """A stand-in G_sc that is one linear map per texel (the mean over the patterns, as ten
+    encoded channels): it gives the same maps whatever the grid, so every mode must reproduce what
+    it gives on the capture, except where a mode samples the capture differently (roughness)."""
+    m = images.mean(1)
+    return torch.cat([m, m, m[:, :1], m], dim=1)
+
+
+def centre_bumps(size=32, block=4):
+    """Captures (1, 5, 3, size, size) of zero mean over each block x block texels but 1 at each
+    block's central 2 x 2: its area average is 0, its texel centres 1."""
+    rest = -4 / (block * block - 4)  # the other texels of the block balance the four 1s
+    a = torch.full((size, size), rest)
+    c = block // 2
+    for i in range(0, size, block):
+        for j in range(0, size, block):
+            a[i + c - 1:i + c + 1, j + c - 1:j + c + 1] = 1.0
+    return a.expand(1, 5, 3, size, size).clone()
 
 
 def test_the_working_grid_caps_each_axis_at_the_training_resolution():
@@ -29,7 +45,7 @@ def test_an_unknown_training_resolution_keeps_the_capture_grid():
 
 
 def test_bad_modes_are_refused():
-    with pytest.raises(MitsvbrdfError, match="transfer must be one of native, coarse, fused, pyramid"):
+    with pytest.raises(MitsvbrdfError, match="transfer must be one of native, coarse, fused, fused-area, pyramid"):
         check_transfer("tiled")
     with pytest.raises(MitsvbrdfError):
         reconstruct_across(per_texel, torch.rand(1, 5, 3, 8, 8), 4, "tiled")
@@ -51,19 +67,56 @@ def test_native_mode_runs_the_networks_on_the_finer_capture_only():
     assert calls == [(32, 32)]
 
 
-def test_coarse_mode_runs_on_the_area_averaged_capture_and_upsamples():
+def test_sampling_texel_centres_4x_coarser_averages_each_blocks_central_2x2():
+    t = torch.rand(2, 3, 16, 16)
+    want = t.reshape(2, 3, 4, 4, 4, 4)[:, :, :, 1:3, :, 1:3].mean(dim=(3, 5))
+    assert torch.allclose(sample_texel_centres(t, (4, 4)), want, atol=EPS)
+
+
+def test_sampling_texel_centres_2x_coarser_is_the_area_average():
+    t = torch.rand(1, 5, 3, 16, 16)
+    assert torch.allclose(sample_texel_centres(t, (8, 8)), resample_texels(t, (8, 8)), atol=EPS)
+
+
+def test_sampling_texel_centres_refuses_a_finer_grid():
+    with pytest.raises(ValueError, match="coarser grid"):
+        sample_texel_centres(torch.rand(1, 3, 8, 8), (16, 16))
+
+
+def test_coarse_mode_upsamples_the_maps_of_the_area_averaged_capture_but_roughness():
     images = torch.rand(1, 5, 3, 32, 32)
     calls = []
     out = reconstruct_across(lambda x: calls.append(tuple(x.shape[-2:])) or per_texel(x), images, 8, "coarse")
-    assert calls == [(8, 8)] and out.shape == (1, 3, 32, 32)
+    assert calls == [(8, 8), (8, 8)] and out.shape == (1, 10, 32, 32)
     # a per-texel linear map commutes with the area average
     want = resample_texels(resample_texels(per_texel(images), (8, 8)), (32, 32))
-    assert torch.allclose(out, want, atol=EPS)
+    assert torch.allclose(out[:, NOT_ROUGH], want[:, NOT_ROUGH], atol=EPS)
 
 
-def test_fused_mode_gives_a_grid_independent_network_its_own_maps():
+def test_coarse_mode_takes_the_roughness_from_the_texel_centres():
+    images = centre_bumps()
+    out = reconstruct_across(per_texel, images, 8, "coarse")
+    assert torch.allclose(out[:, ROUGH], torch.ones(1, 1, 32, 32), atol=EPS)
+    assert torch.allclose(out[:, NOT_ROUGH], torch.zeros(1, 9, 32, 32), atol=EPS)
+
+
+def test_fused_mode_gives_a_grid_independent_network_its_own_maps_but_roughness():
     images = torch.rand(1, 5, 3, 32, 32)
     out = reconstruct_across(per_texel, images, 8, "fused")
+    assert torch.allclose(out[:, NOT_ROUGH], per_texel(images)[:, NOT_ROUGH], atol=EPS)
+
+
+def test_fused_mode_takes_the_roughness_low_band_from_the_texel_centres():
+    # the capture's own detail on top of the centres' low band: the centres read 1 where the
+    # block means read 0, so the fused roughness is the capture's plus one
+    images = centre_bumps()
+    out = reconstruct_across(per_texel, images, 8, "fused")
+    assert torch.allclose(out[:, ROUGH], per_texel(images)[:, ROUGH] + 1.0, atol=EPS)
+
+
+def test_fused_area_mode_gives_a_grid_independent_network_all_its_own_maps():
+    images = centre_bumps() + torch.rand(1, 5, 3, 32, 32)
+    out = reconstruct_across(per_texel, images, 8, "fused-area")
     assert torch.allclose(out, per_texel(images), atol=EPS)
 
 
@@ -73,7 +126,7 @@ def test_fused_mode_takes_the_low_band_from_the_training_grid():
     images = torch.rand(1, 5, 3, 32, 32)
     run = lambda x: per_texel(x) + (0.25 if x.shape[-1] == 8 else 0.0)  # noqa: E731
     out = reconstruct_across(run, images, 8, "fused")
-    assert torch.allclose(out, per_texel(images) + 0.25, atol=EPS)
+    assert torch.allclose(out[:, NOT_ROUGH], per_texel(images)[:, NOT_ROUGH] + 0.25, atol=EPS)
 
 
 def test_the_octave_grids_double_from_the_working_grid_to_the_capture():
@@ -82,17 +135,18 @@ def test_the_octave_grids_double_from_the_working_grid_to_the_capture():
     assert octave_grids((32, 32), 64) == [(32, 32)]
 
 
-def test_pyramid_mode_runs_the_networks_once_on_every_octave():
+def test_pyramid_mode_runs_the_networks_once_on_every_octave_and_the_centres_where_they_differ():
+    # the centres of a grid at most 2x coarser are its area average: no second run there
     images = torch.rand(1, 5, 3, 32, 32)
     calls = []
     reconstruct_across(lambda x: calls.append(tuple(x.shape[-2:])) or per_texel(x), images, 8, "pyramid")
-    assert calls == [(8, 8), (16, 16), (32, 32)]
+    assert calls == [(8, 8), (8, 8), (16, 16), (32, 32)]
 
 
-def test_pyramid_mode_gives_a_grid_independent_network_its_own_maps():
+def test_pyramid_mode_gives_a_grid_independent_network_its_own_maps_but_roughness():
     images = torch.rand(1, 5, 3, 32, 32)
     out = reconstruct_across(per_texel, images, 8, "pyramid")
-    assert torch.allclose(out, per_texel(images), atol=EPS)
+    assert torch.allclose(out[:, NOT_ROUGH], per_texel(images)[:, NOT_ROUGH], atol=EPS)
 
 
 def test_pyramid_mode_takes_each_octave_from_its_own_grid():
@@ -101,7 +155,7 @@ def test_pyramid_mode_takes_each_octave_from_its_own_grid():
     images = torch.rand(1, 5, 3, 32, 32)
     offset = {8: 0.25, 16: -0.5, 32: 1.0}
     out = reconstruct_across(lambda x: per_texel(x) + offset[x.shape[-1]], images, 8, "pyramid")
-    assert torch.allclose(out, per_texel(images) + 0.25, atol=EPS)
+    assert torch.allclose(out[:, NOT_ROUGH], per_texel(images)[:, NOT_ROUGH] + 0.25, atol=EPS)
 
 
 def test_pyramid_mode_takes_the_middle_octave_from_the_middle_grid():
@@ -111,12 +165,12 @@ def test_pyramid_mode_takes_the_middle_octave_from_the_middle_grid():
     checker = (torch.arange(16)[:, None] + torch.arange(16)[None]) % 2 - 0.5
     run = lambda x: per_texel(x) + (checker if x.shape[-1] == 16 else 0.0)  # noqa: E731
     out = reconstruct_across(run, images, 8, "pyramid")
-    want = resample_texels(checker.expand(1, 3, 16, 16), (32, 32))
+    want = resample_texels(checker.expand(1, 10, 16, 16), (32, 32))
     assert torch.allclose(out, want, atol=EPS)
 
 
 def test_patterns_are_predicted_from_the_area_averaged_first_image():
     i0 = torch.rand(2, 3, 32, 32)
     assert prediction_input(i0, 8, "native") is i0
-    for mode in ("coarse", "fused", "pyramid"):
+    for mode in ("coarse", "fused", "fused-area", "pyramid"):
         assert torch.allclose(prediction_input(i0, 8, mode), resample_texels(i0, (8, 8)))

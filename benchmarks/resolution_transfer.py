@@ -13,7 +13,9 @@ they trained.
 
 Per set, size and mode: the mean RMSE of each encoded map and their average, the flat-normal
 level (predicting n = +z) and seconds per material; then the paired per-material difference of
-the average and normal RMSE of every other mode against native (mean +- standard error). The
+the average and normal RMSE of every other mode against native (mean +- standard error), and of
+"fused" against "fused-area" (the roughness's low band from the texel centres against the area
+average) for the average and the roughness RMSE. The
 figure shows the demo material's normal maps at the largest size: ground truth, then each mode. Writes docs/benchmarks/resolution_transfer.md (+ CSV, PNG).
 """
 
@@ -130,6 +132,12 @@ def main() -> None:
             for mode in TRANSFER_MODES[1:]:
                 diff.append(f"| {set_name} | {size} | {mode} | {paired(sel, mode, 'native', 'average')} | "
                             f"{paired(sel, mode, 'native', 'normal')} |")
+    centres = ["| set | px | average, fused - fused-area | roughness, fused - fused-area |", "|---|---:|---:|---:|"]
+    for size in sizes:
+        for set_name in dict.fromkeys(r["set"] for r in per_material):
+            sel = [r for r in per_material if r["set"] == set_name and r["size"] == size]
+            centres.append(f"| {set_name} | {size} | {paired(sel, 'fused', 'fused-area', 'average')} | "
+                           f"{paired(sel, 'fused', 'fused-area', 'roughness')} |")
     net = args.networks.relative_to(ROOT) if args.networks.is_relative_to(ROOT) else args.networks
     text = (f"Command: `benchmarks/resolution_transfer.py --networks {net} --sizes {args.sizes} --n {args.n} "
             f"--spp {args.spp}`\n\nNetworks trained at {trained} px. Mean map RMSE (encoded maps) per set, size "
@@ -138,6 +146,9 @@ def main() -> None:
             "row of each size (the demo material, native) includes Dr.Jit's kernel compilation for that size.\n\n" +
             "\n".join(lines) + "\n\nPaired per-material differences against native (mean +- standard error; "
             "negative: better than native):\n\n" + "\n".join(diff) +
+            "\n\nThe roughness's low band from the capture sampled at the texel centres (\"fused\", the default) "
+            "against the area-averaged capture (\"fused-area\"), paired per material (negative: the centres "
+            "better):\n\n" + "\n".join(centres) +
             "\n\nNormal maps of the demo material at the largest size (encoded: ground truth, then "
             f"{', '.join(TRANSFER_MODES)}):\n\n![normals](resolution_transfer.png)\n")
     print(text)

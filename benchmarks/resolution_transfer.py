@@ -31,7 +31,7 @@ import mitsvbrdf as ms
 from mitsvbrdf import imageio
 from mitsvbrdf.acquisition import DEFAULT_NETWORKS, load_adaptive
 from mitsvbrdf.demo import DEFAULT_MATERIAL
-from mitsvbrdf.evaluation import load_materials
+from mitsvbrdf.evaluation import load_materials, paired_difference
 from mitsvbrdf.metrics import flat_normal_rmse, map_rmse
 from mitsvbrdf.resolution import TRANSFER_MODES
 from mitsvbrdf.viewing import pattern_strip
@@ -60,14 +60,6 @@ def score(acquisitions: dict, gt: ms.SVBRDF, spp: int) -> tuple[dict[str, dict[s
         s = time.perf_counter() - t
         out[mode] = {k: float(v[0]) for k, v in map_rmse(recs[mode], gt).items()} | {"seconds": s}
     return out, recs
-
-
-def paired(rows: list[dict], mode: str, base: str, key: str) -> str:
-    a = torch.tensor([r[key] for r in rows if r["mode"] == mode])
-    b = torch.tensor([r[key] for r in rows if r["mode"] == base])
-    d = a - b
-    se = d.std(unbiased=True) / len(d) ** 0.5 if len(d) > 1 else float("nan")
-    return f"{d.mean():+.4f} +- {se:.4f}"
 
 
 def main() -> None:
@@ -130,14 +122,14 @@ def main() -> None:
         for set_name in dict.fromkeys(r["set"] for r in per_material):
             sel = [r for r in per_material if r["set"] == set_name and r["size"] == size]
             for mode in TRANSFER_MODES[1:]:
-                diff.append(f"| {set_name} | {size} | {mode} | {paired(sel, mode, 'native', 'average')} | "
-                            f"{paired(sel, mode, 'native', 'normal')} |")
+                avg, nrm = (paired_difference(sel, "native", mode, k, "mode") for k in ("average", "normal"))
+                diff.append(f"| {set_name} | {size} | {mode} | {avg} | {nrm} |")
     centres = ["| set | px | average, fused - fused-area | roughness, fused - fused-area |", "|---|---:|---:|---:|"]
     for size in sizes:
         for set_name in dict.fromkeys(r["set"] for r in per_material):
             sel = [r for r in per_material if r["set"] == set_name and r["size"] == size]
-            centres.append(f"| {set_name} | {size} | {paired(sel, 'fused', 'fused-area', 'average')} | "
-                           f"{paired(sel, 'fused', 'fused-area', 'roughness')} |")
+            avg, rough = (paired_difference(sel, "fused-area", "fused", k, "mode") for k in ("average", "roughness"))
+            centres.append(f"| {set_name} | {size} | {avg} | {rough} |")
     net = args.networks.relative_to(ROOT) if args.networks.is_relative_to(ROOT) else args.networks
     text = (f"Command: `benchmarks/resolution_transfer.py --networks {net} --sizes {args.sizes} --n {args.n} "
             f"--spp {args.spp}`\n\nNetworks trained at {trained} px. Mean map RMSE (encoded maps) per set, size "

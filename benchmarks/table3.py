@@ -31,6 +31,7 @@ import time
 from dataclasses import dataclass, field
 from pathlib import Path
 
+from mitsvbrdf.evaluation import paired_difference
 from report import SAMPLES
 
 ROOT = Path(__file__).resolve().parent.parent
@@ -141,25 +142,15 @@ def evaluate(runs: dict[str, Run], data: str, out: Path, size: int, spp: int, n:
         return list(csv.DictReader(f))
 
 
-def paired(rows: list[dict], a: str, b: str) -> tuple[float, float, int, int]:
-    """Average map RMSE of method ``b`` minus method ``a`` over the materials both scored: (mean
-    difference, its standard error, materials where ``a`` is lower, materials)."""
-    by = {(r["method"], r["material"]): float(r["rmse_average"]) for r in rows}
-    d = [by[(b, m)] - by[(a, m)] for (meth, m) in by if meth == a and (b, m) in by]
-    n = len(d)
-    mean = sum(d) / n
-    se = (sum((x - mean) ** 2 for x in d) / (n - 1) / n) ** 0.5 if n > 1 else float("nan")
-    return mean, se, sum(x > 0 for x in d), n
-
-
 def verdict(rows: list[dict]) -> list[str]:
     """The claims on one material set, with paired per-material differences (positive: adaptive better)."""
     def line(other: str) -> str:
-        mean, se, wins, n = paired(rows, "adaptive", other)
+        p = paired_difference(rows, "adaptive", other)
+        mean, se, wins, n = p.mean, p.se, p.a_lower, p.n
         sig = "" if not se == se else (" (beyond 2 standard errors)" if abs(mean) > 2 * se else " (within 2 standard errors)")
         return f"{other} - adaptive = {mean:+.4f} +- {se:.4f}{sig}, adaptive lower on {wins}/{n} materials"
 
-    diffs = {b: paired(rows, "adaptive", b)[0] for b in BASELINES + ["diff-init"]}
+    diffs = {b: paired_difference(rows, "adaptive", b).mean for b in BASELINES + ["diff-init"]}
     worse = [b for b in BASELINES if diffs[b] <= 0]
     return ["- Paired differences of the average map RMSE (positive: adaptive is better):",
             *[f"  - {line(b)}" for b in BASELINES + ["diff-init", "adaptive+spec"]],

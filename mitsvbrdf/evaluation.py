@@ -192,6 +192,32 @@ def summarize(rows: list[dict]) -> list[dict]:
     return out
 
 
+@dataclass(frozen=True)
+class Paired:
+    """A paired per-material difference ``b - a`` of one score: its mean, the mean's standard
+    error (nan for one material), on how many materials ``a`` scored lower, and of how many."""
+
+    mean: float
+    se: float
+    a_lower: int
+    n: int
+
+    def __str__(self) -> str:
+        return f"{self.mean:+.4f} +- {self.se:.4f}"
+
+
+def paired_difference(rows: list[dict], a: str, b: str, key: str = "rmse_average", group: str = "method") -> Paired:
+    """Score ``key`` of method ``b`` minus method ``a`` over the materials both scored (rows as in
+    metrics.csv: the method under ``group``, ``material`` and the scores). ValueError when they
+    share none."""
+    by = {(r[group], r["material"]): float(r[key]) for r in rows}
+    d = np.array([by[(b, m)] - v for (meth, m), v in by.items() if meth == a and (b, m) in by])
+    if not len(d):
+        raise ValueError(f"methods {a!r} and {b!r} scored no material in common")
+    se = float(d.std(ddof=1) / len(d) ** 0.5) if len(d) > 1 else float("nan")
+    return Paired(float(d.mean()), se, int((d > 0).sum()), len(d))
+
+
 HEADS = {"rmse_normal": "Normal", "rmse_diffuse": "Diffuse", "rmse_roughness": "Roughness",
          "rmse_specular": "Specular", "rmse_average": "Average", "rerender_rmse": "Re-render RMSE",
          "ssim": "SSIM", "lpips": "LPIPS"}
@@ -219,6 +245,17 @@ def _write_tables(rows: list[dict], summary: list[dict], out: Path, lp_note: str
     cols = _columns(summary)
     lines = ["| Method | " + " | ".join(HEADS[c] for c in cols) + " |", "|---|" + "---:|" * len(cols)]
     lines += [f"| {s['method']} | " + " | ".join(f"{s[c]:.4f}" for c in cols) + " |" for s in summary]
+    methods = [m["method"] for m in summary]
+    if len(methods) > 1 and summary[0]["materials"] > 1:
+        maps = [c for c in cols if c.startswith("rmse_")]
+        lines += ["", f"Paired per-material differences against {methods[0]} (mean +- standard error; negative: "
+                  f"lower than {methods[0]}), and on how many materials {methods[0]} is lower (average):", "",
+                  "| Method | " + " | ".join(HEADS[c] for c in maps) + f" | {methods[0]} lower |",
+                  "|---|" + "---:|" * (len(maps) + 1)]
+        for m in methods[1:]:
+            d = {c: paired_difference(rows, methods[0], m, c) for c in maps}
+            lines.append(f"| {m} | " + " | ".join(str(d[c]) for c in maps) +
+                         f" | {d['rmse_average'].a_lower}/{d['rmse_average'].n} |")
     note = f"\n\n{lp_note}." if lp_note else ""
     (out / "summary.md").write_text(_caption(summary, flat_normal) + "\n\n" + "\n".join(lines) + note + "\n")
 

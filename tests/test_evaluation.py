@@ -7,7 +7,7 @@ import torch
 
 import mitsvbrdf as ms
 from mitsvbrdf.acquisition import Acquisition, FixedAcquisition
-from mitsvbrdf.evaluation import Relighting, evaluate, simulated, summarize
+from mitsvbrdf.evaluation import Relighting, evaluate, paired_difference, simulated, summarize
 from mitsvbrdf.metrics import flat_normal_rmse
 
 from conftest import textured_material
@@ -58,6 +58,33 @@ def test_outputs_tables_figures_and_index(rig, tmp_path, relight):
     assert f"A flat normal map scores normal RMSE {flat:.4f}" in md
     assert len(list((tmp_path / "figures").glob("*.png"))) == 2
     assert "figures/material_001.png" in (tmp_path / "index.html").read_text()
+
+
+def test_the_summary_pairs_every_method_with_the_first(rig, tmp_path, relight):
+    mats = [textured_material(16, seed=s) for s in range(2)]
+    rows = evaluate({"oracle": _oracle, "flat": _flat}, mats, rig, tmp_path, relight=relight, figures=False,
+                    progress=False)
+    md = (tmp_path / "summary.md").read_text()
+    d = paired_difference(rows, "oracle", "flat")
+    assert "| flat | " in md.split("Paired per-material differences against oracle")[1]
+    assert f"{d} | 2/2 |" in md
+
+
+def test_paired_differences_are_the_mean_and_standard_error_over_shared_materials():
+    rows = [{"method": m, "material": k, "rmse_average": v}
+            for m, vals in (("a", (0.10, 0.20, 0.30)), ("b", (0.12, 0.18, 0.36))) for k, v in zip("xyz", vals)]
+    rows.append({"method": "b", "material": "only b", "rmse_average": 9.0})
+    d = paired_difference(rows, "a", "b")
+    diffs = torch.tensor([0.02, -0.02, 0.06], dtype=torch.float64)
+    assert d.n == 3 and d.a_lower == 2
+    assert d.mean == pytest.approx(float(diffs.mean()))
+    assert d.se == pytest.approx(float(diffs.std() / 3 ** 0.5))
+
+
+def test_paired_differences_need_a_material_in_common():
+    rows = [{"method": "a", "material": "x", "rmse_average": 0.1}, {"method": "b", "material": "y", "rmse_average": 0.1}]
+    with pytest.raises(ValueError, match="no material in common"):
+        paired_difference(rows, "a", "b")
 
 
 def test_figure_files_have_portable_names(rig, tmp_path, relight):

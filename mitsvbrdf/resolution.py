@@ -50,9 +50,10 @@ average, into which the centres would alias fine albedo and relief.
 ``benchmarks/roughness_bias.py`` (docs/benchmarks/roughness_bias.md; chain 9, 16 procedural 256 px
 materials outside the test seeds) measures it: on smooth materials (mean roughness < 0.3) the
 roughness bias is +0.116 from the area average, +0.055 from the centres and +0.016 for the same
-materials reconstructed at 64 px; on rough ones the centres overshoot the other way (-0.037
-against -0.001), and over all 16 the roughness RMSE is 0.086 against 0.106 (average map RMSE
-0.0471 against 0.0521). Rejected there: narrowing alpha^2 by the slope variance of the
+materials reconstructed at 64 px. On rough ones the centres' bias (-0.037) is close to the
+networks' own at 64 px (-0.028), and the area average's smaller one (-0.001) is that bias offset
+by the widening. Over all 16 the roughness RMSE is 0.086 from the centres against 0.106 (average
+map RMSE 0.0471 against 0.0521). Rejected there: narrowing alpha^2 by the slope variance of the
 reconstructed normals within each coarse texel (Toksvig's widening inverted; roughness RMSE
 0.119): the networks do not read roughness as that model does, and it overshoots on smooth and
 rough materials alike.

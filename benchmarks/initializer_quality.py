@@ -29,21 +29,12 @@ from torch import Tensor
 
 import mitsvbrdf as ms
 from mitsvbrdf.acquisition import DEFAULT_NETWORKS, load_adaptive
-from mitsvbrdf.demo import DEFAULT_MATERIAL
 from mitsvbrdf.evaluation import load_materials
 from mitsvbrdf.metrics import MAP_CHANNELS, flat_normal_rmse, map_rmse
 from mitsvbrdf.patterns import monograd
-from report import SAMPLES, write_report
+from report import goal_sets, write_report
 
 ROOT = Path(__file__).resolve().parent.parent
-
-
-def material_sets(size: int, n: int) -> dict[str, list[ms.SVBRDF]]:
-    sets = {f"{n} procedural": load_materials("procedural", size, n),
-            "demo material": [ms.SVBRDF.load(DEFAULT_MATERIAL).resized(size)]}
-    if SAMPLES.is_dir():
-        sets["4 samples"] = load_materials(str(SAMPLES), size, 0)
-    return sets
 
 
 def shown(path: Path) -> str:
@@ -88,7 +79,7 @@ def main() -> None:
     size = args.size or next(iter(acqs.values())).settings.resolution or 64
     maps = list(MAP_CHANNELS)
     rows = []
-    for set_name, mats in material_sets(size, args.n).items():
+    for set_name, mats in goal_sets(size, args.n).items():
         flat = sum(float(flat_normal_rmse(m)[0]) for m in mats) / len(mats)
         for export, acq in acqs.items():
             acq.check_resolution(size, "--size")

@@ -8,10 +8,25 @@ import statistics
 import time
 from pathlib import Path
 
+import mitsvbrdf as ms
+from mitsvbrdf.demo import DEFAULT_MATERIAL
+from mitsvbrdf.evaluation import load_materials
+
 #: The 4 sample materials (Deschaintre-format strips): $MITSVBRDF_SAMPLES, else the checkout's
 #: sibling shared/data/svbrdf_samples (as tests/conftest.py finds them).
 SAMPLES = Path(os.environ.get("MITSVBRDF_SAMPLES",
                               Path(__file__).resolve().parents[2] / "shared" / "data" / "svbrdf_samples"))
+
+
+def goal_sets(size: int, n: int) -> dict[str, list[ms.SVBRDF]]:
+    """The material sets the issue's goals name, at ``size`` px: the demo's bundled material, the
+    sample materials (when :data:`SAMPLES` is there) and ``n`` held-out procedural materials
+    (``evaluate``'s seeds)."""
+    sets = {"demo material": [ms.SVBRDF.load(DEFAULT_MATERIAL).resized(size)]}
+    if SAMPLES.is_dir():
+        sets["4 samples"] = load_materials(str(SAMPLES), size, 0)
+    sets[f"{n} procedural"] = load_materials("procedural", size, n)
+    return sets
 
 
 def write_report(out_dir: Path, stem: str, title: str, script: str, text: str, rows: list[dict]) -> None:

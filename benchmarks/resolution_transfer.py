@@ -30,24 +30,14 @@ import torch
 import mitsvbrdf as ms
 from mitsvbrdf import imageio
 from mitsvbrdf.acquisition import DEFAULT_NETWORKS, load_adaptive
-from mitsvbrdf.demo import DEFAULT_MATERIAL
-from mitsvbrdf.evaluation import load_materials, paired_difference
+from mitsvbrdf.evaluation import paired_difference
 from mitsvbrdf.metrics import flat_normal_rmse, map_rmse
 from mitsvbrdf.resolution import TRANSFER_MODES
 from mitsvbrdf.viewing import pattern_strip
-from report import SAMPLES, write_report
+from report import goal_sets, write_report
 
 ROOT = Path(__file__).resolve().parent.parent
 MAPS = ("normal", "diffuse", "roughness", "specular", "average")
-
-
-def material_sets(size: int, n: int) -> dict[str, list[ms.SVBRDF]]:
-    demo = ms.SVBRDF.load(DEFAULT_MATERIAL).resized(size)
-    sets = {"demo material": [demo]}
-    if SAMPLES.is_dir():
-        sets["4 samples"] = load_materials(str(SAMPLES), size, 0)
-    sets[f"{n} procedural"] = load_materials("procedural", size, n)
-    return sets
 
 
 def score(acquisitions: dict, gt: ms.SVBRDF, spp: int) -> tuple[dict[str, dict[str, float]], dict[str, ms.SVBRDF]]:
@@ -82,7 +72,7 @@ def main() -> None:
     per_material: list[dict] = []  # one row per set, size, mode and material
     figure = None
     for size in sizes:
-        for set_name, mats in material_sets(size, args.n).items():
+        for set_name, mats in goal_sets(size, args.n).items():
             for k, gt in enumerate(mats):
                 name = gt.name or f"{set_name}:{k}"
                 flat = float(flat_normal_rmse(gt)[0])

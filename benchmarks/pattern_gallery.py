@@ -16,6 +16,11 @@ L_pdf and L_1..L_4; the table gives the RMS distance between the pattern sets of
 tell "differs between materials" from "differs between the four patterns of one material".
 A second table sets the initializer's estimate of each material (what L_pdf is computed from)
 beside the truth. Writes docs/benchmarks/pattern_gallery.md (+ CSV, PNG).
+
+``--lpdf-from ground_truth`` computes L_pdf from each material's true normals and roughness
+instead of the initializer's estimate (on the networks' working grid), the patterns G_l would
+predict behind a perfect initializer: it tells whether alike patterns are the initializer's doing
+or G_l's. Writes pattern_gallery_gt-lpdf.md (+ CSV, PNG).
 """
 
 from __future__ import annotations
@@ -23,12 +28,14 @@ from __future__ import annotations
 import argparse
 import itertools
 import math
+from dataclasses import replace
 from pathlib import Path
 
 import torch
 
 import mitsvbrdf as ms
-from mitsvbrdf.acquisition import DEFAULT_NETWORKS, load_adaptive, rendered_capture
+from mitsvbrdf.acquisition import DEFAULT_NETWORKS, load_adaptive, predict, rendered_capture
+from mitsvbrdf.resolution import prediction_input, working_grid
 from mitsvbrdf.viewing import tonemap
 from report import write_report
 
@@ -75,17 +82,27 @@ def main() -> None:
     ap.add_argument("--networks", type=Path, default=DEFAULT_NETWORKS)
     ap.add_argument("--size", type=int, default=128)
     ap.add_argument("--spp", type=int, default=64)
+    ap.add_argument("--lpdf-from", choices=("initializer", "ground_truth"), default="initializer",
+                    help="L_pdf from the initializer's estimate (the method) or from the true maps")
     ap.add_argument("--out", type=Path, default=ROOT / "docs" / "benchmarks")
     args = ap.parse_args()
     rig = ms.Rig.from_scene()
     acq = load_adaptive(args.networks, rig)
     acq.check_resolution(args.size, "--size")
+    truth = args.lpdf_from == "ground_truth"
+    stem = "pattern_gallery_gt-lpdf" if truth else "pattern_gallery"
     mats = archetypes(args.size)
     shown, seen = {}, {}
     for name, m in mats.items():
         capture = rendered_capture(m, rig, method="mitsuba", spp=args.spp, seed=0)
         i0 = capture(acq.l0[None, None])[:, 0]
         patterns, lpdf, estimate = acq.predict_patterns(i0)
+        if truth:  # G_l behind a perfect initializer: L_pdf from the true maps on the working grid
+            x = prediction_input(i0, acq.settings.resolution, acq.transfer)
+            with torch.no_grad():
+                p = predict(acq.initializer, acq.lighting, x, rig, replace(acq.settings, lpdf_from="ground_truth"),
+                            ground_truth=m.resized(working_grid(tuple(i0.shape[-2:]), acq.settings.resolution)))
+            patterns, lpdf = p.patterns, p.lpdf
         shown[name] = (i0[0], lpdf[0, 0], patterns[0])
         seen[name] = {"material": name, **{f"{k} {which}": round(v, 4) for which, mm in (("est.", estimate), ("true", m))
                                          for k, v in summary(mm).items()}}
@@ -96,10 +113,13 @@ def main() -> None:
         spread = sum(rms(p[i], p[j]) for i, j in itertools.combinations(range(4), 2)) / 6
         rows.append({"pair": f"{name}: its own 4 patterns (mean pairwise)", "rms_between": round(spread, 4)})
     net = args.networks.relative_to(ROOT) if args.networks.is_relative_to(ROOT) else args.networks
-    text = (f"Command: `benchmarks/pattern_gallery.py --networks {net} --size {args.size} --spp {args.spp}`\n\n"
+    lpdf_opt = " --lpdf-from ground_truth" if truth else ""
+    text = (f"Command: `benchmarks/pattern_gallery.py --networks {net} --size {args.size} --spp {args.spp}{lpdf_opt}`\n\n"
+            + ("L_pdf from each material's true normals and roughness, not the initializer's estimate: the "
+               "patterns G_l predicts behind a perfect initializer.\n\n" if truth else "") +
             "RMS distance of drive values (in [0, 1]) between the 4 predicted patterns of two materials, "
             "and within one material's set.\n\n| pair | RMS distance |\n|---|---:|\n" +
-            "\n".join(f"| {r['pair']} | {r['rms_between']} |" for r in rows) + "\n\n![patterns](pattern_gallery.png)\n\n"
+            "\n".join(f"| {r['pair']} | {r['rms_between']} |" for r in rows) + f"\n\n![patterns]({stem}.png)\n\n"
             "L_pdf, and through it the patterns, comes from the initializer's estimate from I_0: its mean "
             "roughness, RMS normal tilt (sin of the angle from +z) and mean specular albedo beside the truth.\n\n"
             "| material | " + " | ".join(f"{k} {w}" for k in SUMMARY for w in ("est.", "true")) + " |\n|---|"
@@ -107,7 +127,7 @@ def main() -> None:
             + "\n".join(f"| {r['material']} | " + " | ".join(f"{r[f'{k} {w}']:.3f}" for k in SUMMARY for w in ("est.", "true"))
                          + " |" for r in seen.values()) + "\n")
     print(text)
-    write_report(args.out, "pattern_gallery", "Predicted patterns of a metal, a rough dielectric and a bumpy material",
+    write_report(args.out, stem, "Predicted patterns of a metal, a rough dielectric and a bumpy material",
                  "pattern_gallery.py", text, rows)
     import matplotlib
 
@@ -127,7 +147,7 @@ def main() -> None:
         ax.set_xticks([])
         ax.set_yticks([])
     fig.tight_layout()
-    fig.savefig(args.out / "pattern_gallery.png", dpi=100)
+    fig.savefig(args.out / f"{stem}.png", dpi=100)
 
 
 if __name__ == "__main__":

@@ -279,8 +279,8 @@ class AdaptiveAcquisition(torch.nn.Module):
         l0, initializer, lighting, reconstructor: see the module docstring.
         rig: the capture rig (L_pdf and the separation need its geometry and display model).
         settings: how the networks were trained (:class:`AcquisitionSettings`).
-        transfer: how a capture finer than ``settings.resolution`` is reconstructed: "fused"
-            (default), "pyramid", "coarse" or "native" (:mod:`mitsvbrdf.resolution`).
+        transfer: how a capture finer than ``settings.resolution`` is reconstructed, one of
+            :data:`mitsvbrdf.resolution.TRANSFER_MODES` (default "fused").
     """
 
     def __init__(self, l0: Tensor, initializer: torch.nn.Module, lighting: torch.nn.Module,

@@ -262,6 +262,12 @@ def cmd_train(args: argparse.Namespace) -> int:
         return 128 + e.signal
     if last:
         print("last logged: " + ", ".join(f"{k}={v:.4g}" for k, v in last.items() if isinstance(v, float)))
+        budget = cfg.train.time_budget
+        if budget > 0 and last["step"] >= cfg.train.steps and last["seconds"] < budget:
+            # train.steps caps a budgeted run (docs/training.md); say so where a user sees the run end early
+            print(f"mitsvbrdf train: stopped at train.steps = {cfg.train.steps} after {last['seconds']:.0f} s of "
+                  f"the {budget:.0f} s time budget; raise train.steps (e.g. --set train.steps=1000000) to spend "
+                  "the budget", file=sys.stderr)
     print(f"outputs in {cfg.out}: {written()}")
     return 0
 

@@ -74,6 +74,17 @@ def test_budget_schedule_is_the_cosine_of_the_elapsed_fraction(tmp_path):
         assert t.opt.param_groups[0]["lr"] == pytest.approx(want, abs=1e-15)
 
 
+def test_a_budgeted_train_command_that_hits_its_step_cap_says_so(tmp_path, capsys):
+    from mitsvbrdf.cli import main
+
+    cfg = tmp_path / "tiny.toml"
+    cfg.write_text('stage = "init"\nseed = 0\n[data]\nsize = 8\n[render]\nmethod = "ltc"\nltc_mode = "prefiltered"\n'
+                   '[model]\ninitializer_width = 4\n[train]\nsteps = 2\nbatch = 2\nlog_every = 1\n')
+    assert main(["train", str(cfg), "--out", str(tmp_path / "run"), "--time-budget", "1h", "--quiet"]) == 0
+    err = capsys.readouterr().err
+    assert "stopped at train.steps = 2" in err and "3600 s time budget" in err
+
+
 def test_budgeted_run_ends_when_the_budget_is_spent_and_exports(tmp_path):
     budget = 1.5
     t = Trainer(budgeted(tmp_path, budget), progress=False)

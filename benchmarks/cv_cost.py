@@ -25,7 +25,7 @@ import mitsvbrdf as ms
 from mitsvbrdf import patterns as pt
 from mitsvbrdf.data import procedural
 from mitsvbrdf.render.control_variate import LAST_MATERIALS
-from mitsvbrdf.render.mitsuba import integrator_control_variate, load_scene
+from mitsvbrdf.render.mitsuba import integrator_control_variate, load_scene, variant_for
 from estimators import ESTIMATORS, estimator_rigs
 from report import OtherLoad, median_seconds, write_report
 
@@ -34,7 +34,7 @@ ROOT = Path(__file__).resolve().parent.parent
 
 def closed_form(m: ms.SVBRDF, pats: torch.Tensor, rig: ms.Rig):
     """The control variate alone with the rig's integrator options, or None for plain Monte Carlo."""
-    integrator = load_scene(str(rig.source), "llvm_ad_rgb")[3]
+    integrator = load_scene(str(rig.source), variant_for(pats.device))[3]
     if integrator.control_variate == "none":
         return None
     return lambda: integrator_control_variate(m, pats.expand(m.batch_size, *pats.shape), rig, integrator)

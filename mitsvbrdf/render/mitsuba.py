@@ -30,7 +30,8 @@ from .control_variate import control_variate
 _SCENES: dict[tuple[str, str], tuple] = {}
 
 
-def _variant_for(device: torch.device) -> str:
+def variant_for(device: torch.device) -> str:
+    """The Mitsuba variant that renders tensors on ``device``: Dr.Jit shares their memory."""
     return "cuda_ad_rgb" if device.type == "cuda" else "llvm_ad_rgb"
 
 
@@ -108,7 +109,7 @@ def render_mitsuba(svbrdf, patterns: Tensor, rig: Rig, *, spp: int = 64, seed: i
     rig.check_patterns(patterns)
     if not Path(rig.source).is_file():
         raise ValueError(f"method='mitsuba' needs a rig read from a scene file, got source {rig.source!r}")
-    mi, scene, params, integrator = load_scene(str(rig.source), _variant_for(device))
+    mi, scene, params, integrator = load_scene(str(rig.source), variant_for(device))
     _place_sample(params, rig)
     import drjit as dr  # after load_scene: the backend must choose libLLVM before drjit loads
 

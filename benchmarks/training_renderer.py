@@ -43,6 +43,7 @@ from pathlib import Path
 import torch
 
 from mitsvbrdf.capture.scene_file import write_integrator_options
+from mitsvbrdf.evaluation import paired
 from mitsvbrdf.rig import DEFAULT_SCENE
 
 ROOT = Path(__file__).resolve().parent.parent
@@ -142,11 +143,7 @@ def paired_lines(scores: dict[str, dict[str, list[float]]], base: str, keys: lis
     for name, sc in scores.items():
         if name == base:
             continue
-        cells = []
-        for k in keys:
-            d = torch.tensor(sc[k]) - torch.tensor(scores[base][k])
-            cells.append(f"{d.mean():+.4f} +- {d.std(unbiased=True) / len(d) ** 0.5:.4f}")
-        lines.append(f"| {name} | " + " | ".join(cells) + " |")
+        lines.append(f"| {name} | " + " | ".join(str(paired(scores[base][k], sc[k])) for k in keys) + " |")
     return lines
 
 

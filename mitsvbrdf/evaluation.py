@@ -206,16 +206,26 @@ class Paired:
         return f"{self.mean:+.4f} +- {self.se:.4f}"
 
 
+def paired(a, b) -> Paired:
+    """The paired difference ``b - a`` of two equally long sequences of scores, element by element
+    (the same materials in the same order). ValueError when they are empty or differ in length."""
+    a, b = np.asarray(a, dtype=float), np.asarray(b, dtype=float)
+    if a.shape != b.shape or not a.size:
+        raise ValueError(f"paired scores need two equally long, non-empty sequences; got {a.size} and {b.size}")
+    d = b - a
+    se = float(d.std(ddof=1) / len(d) ** 0.5) if len(d) > 1 else float("nan")
+    return Paired(float(d.mean()), se, int((d > 0).sum()), len(d))
+
+
 def paired_difference(rows: list[dict], a: str, b: str, key: str = "rmse_average", group: str = "method") -> Paired:
     """Score ``key`` of method ``b`` minus method ``a`` over the materials both scored (rows as in
     metrics.csv: the method under ``group``, ``material`` and the scores). ValueError when they
     share none."""
     by = {(r[group], r["material"]): float(r[key]) for r in rows}
-    d = np.array([by[(b, m)] - v for (meth, m), v in by.items() if meth == a and (b, m) in by])
-    if not len(d):
+    common = [(v, by[(b, m)]) for (meth, m), v in by.items() if meth == a and (b, m) in by]
+    if not common:
         raise ValueError(f"methods {a!r} and {b!r} scored no material in common")
-    se = float(d.std(ddof=1) / len(d) ** 0.5) if len(d) > 1 else float("nan")
-    return Paired(float(d.mean()), se, int((d > 0).sum()), len(d))
+    return paired(*zip(*common))
 
 
 HEADS = {"rmse_normal": "Normal", "rmse_diffuse": "Diffuse", "rmse_roughness": "Roughness",

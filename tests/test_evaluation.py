@@ -7,7 +7,7 @@ import torch
 
 import mitsvbrdf as ms
 from mitsvbrdf.acquisition import Acquisition, FixedAcquisition
-from mitsvbrdf.evaluation import Relighting, evaluate, paired_difference, simulated, summarize
+from mitsvbrdf.evaluation import Relighting, evaluate, paired, paired_difference, simulated, summarize
 from mitsvbrdf.metrics import flat_normal_rmse
 
 from conftest import textured_material
@@ -85,6 +85,11 @@ def test_paired_differences_need_a_material_in_common():
     rows = [{"method": "a", "material": "x", "rmse_average": 0.1}, {"method": "b", "material": "y", "rmse_average": 0.1}]
     with pytest.raises(ValueError, match="no material in common"):
         paired_difference(rows, "a", "b")
+
+
+def test_paired_scores_must_be_equally_long():
+    with pytest.raises(ValueError, match="equally long"):
+        paired([0.1, 0.2], [0.1])
 
 
 def test_figure_files_have_portable_names(rig, tmp_path, relight):

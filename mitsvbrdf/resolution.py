@@ -25,7 +25,7 @@ Modes (:data:`TRANSFER_MODES`) for a capture on an H x W grid finer than the net
   networks were trained to see comes from the coarse run; from the native run only the detail the
   coarse grid cannot hold. The normal is renormalised when the maps are decoded.
 * ``"fused-area"``: "fused" with every map of M_R from the area-averaged capture (the default
-  until roughness came from the texel centres, below; kept to measure against).
+  until roughness came from the texel centres, then the phases, below; kept to measure against).
 * ``"pyramid"``: "fused" over every octave (:func:`octave_grids`): G_sc runs on the capture
   brought to R, 2R, 4R, ... up to H x W, and each grid adds only the octave the one below it
   cannot hold::
@@ -39,23 +39,26 @@ Modes (:data:`TRANSFER_MODES`) for a capture on an H x W grid finer than the net
 
 The maps on a coarser grid (:func:`grid_maps`) come from the capture area-averaged to it (each
 coarse texel's mean radiance, :func:`~mitsvbrdf.svbrdf.resample_texels`, what a camera with that
-many pixels records), except the roughness, which comes from a second run on the capture sampled
-at the coarse texels' centres (:func:`~mitsvbrdf.svbrdf.sample_texel_centres`; at 4x, the mean of
-each block's central 2 x 2 texels). The networks trained on materials constant over each texel; a
-coarse texel of a finer material mixes the reflections of differently tilted sub-texels, which
-widens a glossy highlight as a rougher surface would (Toksvig's effect): from the area average the
-networks read the roughness too high wherever the relief is finer than their grid. Sampled at the
-centres, each coarse texel sees a quarter of its sub-texels; the other maps stay on the area
-average, into which the centres would alias fine albedo and relief.
-``benchmarks/roughness_bias.py`` (docs/benchmarks/roughness_bias.md; chain 9, 16 procedural 256 px
-materials outside the test seeds) measures it: on smooth materials (mean roughness < 0.3) the
-roughness bias is +0.116 from the area average, +0.055 from the centres and +0.016 for the same
-materials reconstructed at 64 px. On rough ones the centres' bias (-0.037) is close to the
-networks' own at 64 px (-0.028), and the area average's smaller one (-0.001) is that bias offset
-by the widening. Over all 16 the roughness RMSE is 0.086 from the centres against 0.106 (average
-map RMSE 0.0471 against 0.0521). Rejected there: narrowing alpha^2 by the slope variance of the
+many pixels records), except the roughness. The networks trained on materials constant over each
+texel; a coarse texel of a finer material mixes the reflections of differently tilted sub-texels,
+which widens a glossy highlight as a rougher surface would (Toksvig's effect): from the area
+average the networks read the roughness too high wherever the relief is finer than their grid.
+So the roughness is the mean of k^2 more runs on the coarse grid, one per texel phase
+(:func:`~mitsvbrdf.svbrdf.texel_phases`, k = H / R): each run sees the capture sampled at one
+fine texel of every coarse texel (:func:`~mitsvbrdf.svbrdf.sample_within_texels`), single texels
+as in training, and together they see every fine texel once. (A run sees its texels at the
+coarse texels' centres, where it computes the irradiance L^d; the offset is under 1% of L^d.)
+The other maps stay on the area average, into which the phases would alias fine albedo and relief.
+``benchmarks/roughness_bias.py`` (docs/benchmarks/roughness_bias.md; chain 9, 48 procedural
+256 px materials outside the test seeds) measures it: on smooth materials (mean roughness < 0.3)
+the roughness bias is +0.057 from the area average, +0.024 from the capture sampled at the
+texel centres (one run, the default before the phases), -0.006 from the phases and +0.001 for
+the same materials reconstructed at 64 px. Over all 48 the roughness RMSE is 0.074 from the
+phases, 0.080 from the centres and 0.091 from the area average (the phases lower than the centres
+by 0.0061 +- 0.0027 per material, on 29 of the 48). Rejected there: the phases' low band without
+the capture's own detail (0.077), and narrowing alpha^2 by the slope variance of the
 reconstructed normals within each coarse texel (Toksvig's widening inverted; roughness RMSE
-0.119): the networks do not read roughness as that model does, and it overshoots on smooth and
+0.129): the networks do not read roughness as that model does, and it overshoots on smooth and
 rough materials alike.
 
 In every mode but "native" the initializer and G_l predict from the area-averaged I_0 (the
@@ -73,7 +76,7 @@ import torch
 from torch import Tensor
 
 from .errors import MitsvbrdfError
-from .svbrdf import ENCODED_SLICES, resample_texels, sample_texel_centres
+from .svbrdf import ENCODED_SLICES, resample_texels, sample_within_texels, texel_phases
 
 #: How networks trained on one texel grid meet a finer capture (module docstring).
 TRANSFER_MODES = ("native", "coarse", "fused", "fused-area", "pyramid")
@@ -122,17 +125,19 @@ def fuse_bands(coarse: Tensor, fine: Tensor) -> Tensor:
 
 
 def grid_maps(run: Callable[[Tensor], Tensor], images: Tensor, grid: tuple[int, int],
-              centred_roughness: bool = True) -> Tensor:
+              phased_roughness: bool = True) -> Tensor:
     """The (B, 10, h, w) encoded maps of ``run`` for a capture ``images`` (B, P, 3, H, W) brought to
-    the coarser ``grid`` (h, w): from the area-averaged capture, with the roughness from the capture
-    sampled at the grid's texel centres where ``centred_roughness`` and that differs from the area
-    average (a grid more than 2x coarser; module docstring)."""
+    the coarser ``grid`` (h, w): from the area-averaged capture, with the roughness, where
+    ``phased_roughness``, the mean of the runs on the capture sampled at each of
+    :func:`~mitsvbrdf.svbrdf.texel_phases` (one run per fine texel a coarse texel covers, each
+    seeing one fine texel of every coarse texel; module docstring)."""
     maps = run(resample_texels(images, grid))
-    if not centred_roughness or all(2 * g >= f for g, f in zip(grid, images.shape[-2:])):
+    phases = texel_phases(tuple(images.shape[-2:]), grid)
+    if not phased_roughness or len(phases) == 1:
         return maps
     r = ENCODED_SLICES["roughness"]
-    centred = run(sample_texel_centres(images, grid))
-    return torch.cat([maps[:, :r.start], centred[:, r], maps[:, r.stop:]], dim=1)
+    rough = sum(run(sample_within_texels(images, grid, at))[:, r] for at in phases) / len(phases)
+    return torch.cat([maps[:, :r.start], rough, maps[:, r.stop:]], dim=1)
 
 
 def reconstruct_across(run: Callable[[Tensor], Tensor], images: Tensor, trained: int | None,
@@ -145,13 +150,13 @@ def reconstruct_across(run: Callable[[Tensor], Tensor], images: Tensor, trained:
     grid = working_grid(full, trained)
     if mode == "native" or grid == full:
         return run(images)
-    centred = mode != "fused-area"
-    maps = grid_maps(run, images, grid, centred)
+    phased = mode != "fused-area"
+    maps = grid_maps(run, images, grid, phased)
     if mode == "coarse":
         return resample_texels(maps, full)
     finer = octave_grids(full, trained)[1:] if mode == "pyramid" else [full]  # "fused": one step to the capture
     for g in finer:
-        maps = fuse_bands(maps, run(images) if g == full else grid_maps(run, images, g, centred))
+        maps = fuse_bands(maps, run(images) if g == full else grid_maps(run, images, g, phased))
     return maps
 
 

@@ -158,20 +158,32 @@ def resample_texels(t: Tensor, size: tuple[int, int]) -> Tensor:
     return x.reshape(*lead, *x.shape[-3:])
 
 
-def sample_texel_centres(t: Tensor, size: tuple[int, int]) -> Tensor:
-    """``(..., C, H, W)`` -> ``(..., C, h, w)``, h <= H and w <= W: ``t`` at the centres of the
-    coarser grid's texels, bilinear between the four texels nearest each centre (a grid 4x
-    coarser: the mean of each block's central 2 x 2 texels; 2x coarser: the block's mean, as in
-    :func:`resample_texels`). Where :func:`resample_texels` gives a coarse texel of a capture the
-    radiance mixed over its whole area, this keeps the radiance of a small patch at its centre."""
+def texel_phases(fine: tuple[int, int], coarse: tuple[int, int]) -> list[tuple[float, float]]:
+    """The points (y, x) within a texel of the ``coarse`` grid (h, w), as fractions of its extent,
+    that land on the texels of the ``fine`` grid (H, W) it covers: ((i + 1/2) / k_y, (j + 1/2) / k_x)
+    for k = ceil(H / h) x ceil(W / w) (an integer ratio: each of a block's k_y k_x texels exactly)."""
+    ky, kx = (-(-int(f) // int(c)) for f, c in zip(fine, coarse))
+    return [((i + 0.5) / ky, (j + 0.5) / kx) for i in range(ky) for j in range(kx)]
+
+
+def sample_within_texels(t: Tensor, size: tuple[int, int], at: tuple[float, float] = (0.5, 0.5)) -> Tensor:
+    """``(..., C, H, W)`` -> ``(..., C, h, w)``, h <= H and w <= W: ``t`` at one point of each texel
+    of the coarser grid, ``at`` = (y, x) its position within the texel as fractions of its extent,
+    bilinear between the four texels nearest it (the border texels extended). At the centre of a
+    grid 4x coarser: the mean of each block's central 2 x 2 texels; at a point of
+    :func:`texel_phases`: one texel of each block. Where :func:`resample_texels` gives a coarse
+    texel of a capture the radiance mixed over its whole area, this keeps the radiance of a patch
+    of the fine pitch at one place in it."""
     h, w = size
     if h > t.shape[-2] or w > t.shape[-1]:
-        raise ValueError(f"sample_texel_centres samples a coarser grid; got {tuple(t.shape[-2:])} -> {(h, w)}")
-    if tuple(t.shape[-2:]) == (h, w):
-        return t
+        raise ValueError(f"sample_within_texels samples a coarser grid; got {tuple(t.shape[-2:])} -> {(h, w)}")
     lead = t.shape[:-3]
-    x = torch.nn.functional.interpolate(t.reshape(-1, *t.shape[-3:]), size=(h, w), mode="bilinear",
-                                        align_corners=False, antialias=False)
+    x = t.reshape(-1, *t.shape[-3:])
+    # grid_sample's coordinates (align_corners=False): -1 and 1 are the outer edges of the grid
+    ys = (torch.arange(h, dtype=x.dtype, device=x.device) + at[0]) * (2.0 / h) - 1.0
+    xs = (torch.arange(w, dtype=x.dtype, device=x.device) + at[1]) * (2.0 / w) - 1.0
+    grid = torch.stack(torch.meshgrid(xs, ys, indexing="xy"), dim=-1).expand(x.shape[0], h, w, 2)
+    x = torch.nn.functional.grid_sample(x, grid, mode="bilinear", padding_mode="border", align_corners=False)
     return x.reshape(*lead, *x.shape[-3:])
 
 

@@ -6,7 +6,7 @@ import torch
 from mitsvbrdf.errors import MitsvbrdfError
 from mitsvbrdf.resolution import (TRANSFER_MODES, check_transfer, octave_grids, prediction_input, reconstruct_across,
                                   working_grid)
-from mitsvbrdf.svbrdf import ENCODED_SLICES, resample_texels, sample_texel_centres
+from mitsvbrdf.svbrdf import ENCODED_SLICES, resample_texels, sample_within_texels, texel_phases
 
 # float32 sums of a few texels: a few units in the last place of values near 1
 EPS = 1e-6
@@ -22,16 +22,16 @@ def per_texel(images):
     return torch.cat([m, m, m[:, :1], m], dim=1)
 
 
-def centre_bumps(size=32, block=4):
-    """Captures (1, 5, 3, size, size) of zero mean over each block x block texels but 1 at each
-    block's central 2 x 2: its area average is 0, its texel centres 1."""
-    rest = -4 / (block * block - 4)  # the other texels of the block balance the four 1s
-    a = torch.full((size, size), rest)
-    c = block // 2
-    for i in range(0, size, block):
-        for j in range(0, size, block):
-            a[i + c - 1:i + c + 1, j + c - 1:j + c + 1] = 1.0
-    return a.expand(1, 5, 3, size, size).clone()
+def squared_per_texel(images):
+    """A grid-independent stand-in G_sc that is nonlinear per texel (the square of per_texel): the
+    mean of its maps over a block's texels differs from its map of the block's mean radiance."""
+    return per_texel(images) ** 2
+
+
+def block_mean(t, block=4):
+    """(B, C, H, W) -> (B, C, H / block, W / block): the mean over each block x block texels."""
+    b, c, h, w = t.shape
+    return t.reshape(b, c, h // block, block, w // block, block).mean(dim=(3, 5))
 
 
 def test_the_working_grid_caps_each_axis_at_the_training_resolution():
@@ -67,37 +67,56 @@ def test_native_mode_runs_the_networks_on_the_finer_capture_only():
     assert calls == [(32, 32)]
 
 
-def test_sampling_texel_centres_4x_coarser_averages_each_blocks_central_2x2():
+def test_sampling_within_texels_4x_coarser_at_the_centre_averages_each_blocks_central_2x2():
     t = torch.rand(2, 3, 16, 16)
     want = t.reshape(2, 3, 4, 4, 4, 4)[:, :, :, 1:3, :, 1:3].mean(dim=(3, 5))
-    assert torch.allclose(sample_texel_centres(t, (4, 4)), want, atol=EPS)
+    assert torch.allclose(sample_within_texels(t, (4, 4)), want, atol=EPS)
 
 
-def test_sampling_texel_centres_2x_coarser_is_the_area_average():
+def test_sampling_within_texels_2x_coarser_at_the_centre_is_the_area_average():
     t = torch.rand(1, 5, 3, 16, 16)
-    assert torch.allclose(sample_texel_centres(t, (8, 8)), resample_texels(t, (8, 8)), atol=EPS)
+    assert torch.allclose(sample_within_texels(t, (8, 8)), resample_texels(t, (8, 8)), atol=EPS)
 
 
-def test_sampling_texel_centres_refuses_a_finer_grid():
+def test_each_texel_phase_samples_one_texel_of_every_block():
+    t = torch.rand(1, 5, 3, 16, 12)
+    phases = texel_phases((16, 12), (4, 3))
+    assert len(phases) == 16
+    for at in phases:
+        i, j = int(at[0] * 4), int(at[1] * 4)
+        assert torch.allclose(sample_within_texels(t, (4, 3), at), t[..., i::4, j::4], atol=EPS)
+
+
+def test_texel_phases_round_a_fractional_ratio_up():
+    assert texel_phases((10, 8), (4, 8)) == [(1 / 6, 0.5), (0.5, 0.5), (5 / 6, 0.5)]
+
+
+def test_sampling_within_texels_refuses_a_finer_grid():
     with pytest.raises(ValueError, match="coarser grid"):
-        sample_texel_centres(torch.rand(1, 3, 8, 8), (16, 16))
+        sample_within_texels(torch.rand(1, 3, 8, 8), (16, 16))
+
+
+def test_coarse_mode_runs_the_networks_on_the_area_average_and_on_every_texel_phase():
+    images = torch.rand(1, 5, 3, 32, 32)
+    calls = []
+    out = reconstruct_across(lambda x: calls.append(tuple(x.shape[-2:])) or per_texel(x), images, 8, "coarse")
+    assert calls == [(8, 8)] * (1 + 16) and out.shape == (1, 10, 32, 32)
 
 
 def test_coarse_mode_upsamples_the_maps_of_the_area_averaged_capture_but_roughness():
     images = torch.rand(1, 5, 3, 32, 32)
-    calls = []
-    out = reconstruct_across(lambda x: calls.append(tuple(x.shape[-2:])) or per_texel(x), images, 8, "coarse")
-    assert calls == [(8, 8), (8, 8)] and out.shape == (1, 10, 32, 32)
-    # a per-texel linear map commutes with the area average
-    want = resample_texels(resample_texels(per_texel(images), (8, 8)), (32, 32))
+    out = reconstruct_across(squared_per_texel, images, 8, "coarse")
+    want = resample_texels(squared_per_texel(resample_texels(images, (8, 8))), (32, 32))
     assert torch.allclose(out[:, NOT_ROUGH], want[:, NOT_ROUGH], atol=EPS)
 
 
-def test_coarse_mode_takes_the_roughness_from_the_texel_centres():
-    images = centre_bumps()
-    out = reconstruct_across(per_texel, images, 8, "coarse")
-    assert torch.allclose(out[:, ROUGH], torch.ones(1, 1, 32, 32), atol=EPS)
-    assert torch.allclose(out[:, NOT_ROUGH], torch.zeros(1, 9, 32, 32), atol=EPS)
+def test_coarse_mode_takes_the_roughness_from_the_mean_over_the_texel_phases():
+    # each phase's run sees single texels: their mean is the block mean of the per-texel maps,
+    # not the map of the block's mean radiance
+    images = torch.rand(1, 5, 3, 32, 32)
+    out = reconstruct_across(squared_per_texel, images, 8, "coarse")
+    want = resample_texels(block_mean(squared_per_texel(images)), (32, 32))
+    assert torch.allclose(out[:, ROUGH], want[:, ROUGH], atol=EPS)
 
 
 def test_fused_mode_gives_a_grid_independent_network_its_own_maps_but_roughness():
@@ -106,17 +125,21 @@ def test_fused_mode_gives_a_grid_independent_network_its_own_maps_but_roughness(
     assert torch.allclose(out[:, NOT_ROUGH], per_texel(images)[:, NOT_ROUGH], atol=EPS)
 
 
-def test_fused_mode_takes_the_roughness_low_band_from_the_texel_centres():
-    # the capture's own detail on top of the centres' low band: the centres read 1 where the
-    # block means read 0, so the fused roughness is the capture's plus one
-    images = centre_bumps()
-    out = reconstruct_across(per_texel, images, 8, "fused")
-    assert torch.allclose(out[:, ROUGH], per_texel(images)[:, ROUGH] + 1.0, atol=EPS)
+def test_fused_mode_gives_a_nonlinear_per_texel_network_its_own_roughness():
+    # the phases' low band is the block mean of the per-texel maps, which the capture's own detail
+    # completes to the per-texel maps; from the area average ("fused-area") it does not
+    images = torch.rand(1, 5, 3, 32, 32)
+    own = squared_per_texel(images)[:, ROUGH]
+    assert torch.allclose(reconstruct_across(squared_per_texel, images, 8, "fused")[:, ROUGH], own, atol=EPS)
+    assert not torch.allclose(reconstruct_across(squared_per_texel, images, 8, "fused-area")[:, ROUGH], own,
+                              atol=1e-3)
 
 
-def test_fused_area_mode_gives_a_grid_independent_network_all_its_own_maps():
-    images = centre_bumps() + torch.rand(1, 5, 3, 32, 32)
-    out = reconstruct_across(per_texel, images, 8, "fused-area")
+def test_fused_area_mode_gives_a_grid_independent_linear_network_all_its_own_maps():
+    images = torch.rand(1, 5, 3, 32, 32)
+    calls = []
+    out = reconstruct_across(lambda x: calls.append(tuple(x.shape[-2:])) or per_texel(x), images, 8, "fused-area")
+    assert calls == [(8, 8), (32, 32)]
     assert torch.allclose(out, per_texel(images), atol=EPS)
 
 
@@ -135,12 +158,12 @@ def test_the_octave_grids_double_from_the_working_grid_to_the_capture():
     assert octave_grids((32, 32), 64) == [(32, 32)]
 
 
-def test_pyramid_mode_runs_the_networks_once_on_every_octave_and_the_centres_where_they_differ():
-    # the centres of a grid at most 2x coarser are its area average: no second run there
+def test_pyramid_mode_runs_the_networks_on_every_octave_and_on_each_coarser_grids_phases():
+    # 8 px: the area average and 16 phases of 4 x 4; 16 px: the area average and 4 phases of 2 x 2
     images = torch.rand(1, 5, 3, 32, 32)
     calls = []
     reconstruct_across(lambda x: calls.append(tuple(x.shape[-2:])) or per_texel(x), images, 8, "pyramid")
-    assert calls == [(8, 8), (8, 8), (16, 16), (32, 32)]
+    assert calls == [(8, 8)] * (1 + 16) + [(16, 16)] * (1 + 4) + [(32, 32)]
 
 
 def test_pyramid_mode_gives_a_grid_independent_network_its_own_maps_but_roughness():

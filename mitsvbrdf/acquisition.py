@@ -4,7 +4,8 @@
     -> capture I_1..I_4 -> I^spec (separation) -> G_sc -> SVBRDF maps
 
 The steps are functions that inference and training share: :func:`predict` (I_0 -> L_pdf -> the
-adaptive patterns) and :func:`reconstruct_maps` (captures -> G_sc's encoded maps). Around them:
+adaptive patterns) and :func:`reconstruct_maps` (captures -> G_sc's encoded maps; G_sc alone on any grid:
+:func:`map_predictor`). Around them:
 
 * :class:`AdaptiveAcquisition` runs the steps with trained (or injected) networks, for a capture
   function of any kind (a renderer in :meth:`~AdaptiveAcquisition.simulate`, the bench's devices
@@ -206,24 +207,32 @@ def predict(initializer: torch.nn.Module, lighting: torch.nn.Module, i0: Tensor,
                       getattr(out, "roughness", None))
 
 
-def reconstruct_maps(reconstructor: torch.nn.Module, images: Tensor, patterns: Tensor, rig: Rig, *,
-                     use_spec: bool, resolution: int | None = None, transfer: str = DEFAULT_TRANSFER) -> Tensor:
-    """G_sc on captures (B, P, 3, H, W) under ``patterns`` (B, P, 3, h, w) or (P, 3, h, w):
-    ``reconstructor(images, I^spec)`` with I^spec separated from the images (Eq. 5), or
-    ``reconstructor(images, None)`` without ``use_spec``; a G_sc built with ``diffuse_ratio`` also
-    gets the patterns' irradiance L^d, which I^spec shares. A capture finer than G_sc's training
-    grid ``resolution`` is reconstructed across both grids in ``transfer`` mode
-    (:func:`mitsvbrdf.resolution.reconstruct_across`; None: on its own grid). Returns its
-    (B, 10, H, W) encoded maps."""
+def map_predictor(reconstructor: torch.nn.Module, patterns: Tensor, rig: Rig, *,
+                  use_spec: bool) -> Callable[[Tensor], Tensor]:
+    """G_sc as a function of captures alone, on whatever texel grid they come: ``run(images
+    (B, P, 3, h, w)) -> (B, 10, h, w)`` encoded maps, for images under ``patterns`` (B, P, 3, h', w')
+    or (P, 3, h', w'): ``reconstructor(images, I^spec)`` with I^spec separated from the images
+    (Eq. 5), or ``reconstructor(images, None)`` without ``use_spec``; a G_sc built with
+    ``diffuse_ratio`` also gets the patterns' irradiance L^d on that grid, which I^spec shares."""
     ratio = getattr(reconstructor, "diffuse_ratio", False)
-    patterns = patterns.to(images.device, images.dtype)
 
-    def run(imgs: Tensor) -> Tensor:  # G_sc on one texel grid
-        ld = diffuse_irradiance(patterns, rig, imgs.shape[-2:]) if ratio or use_spec else None
-        spec = separate_specular(imgs, patterns, rig, irradiance=ld) if use_spec else None
+    def run(imgs: Tensor) -> Tensor:
+        p = patterns.to(imgs.device, imgs.dtype)
+        ld = diffuse_irradiance(p, rig, imgs.shape[-2:]) if ratio or use_spec else None
+        spec = separate_specular(imgs, p, rig, irradiance=ld) if use_spec else None
         return reconstructor(imgs, spec, irradiance=ld) if ratio else reconstructor(imgs, spec)
 
-    return reconstruct_across(run, images, resolution, transfer)
+    return run
+
+
+def reconstruct_maps(reconstructor: torch.nn.Module, images: Tensor, patterns: Tensor, rig: Rig, *,
+                     use_spec: bool, resolution: int | None = None, transfer: str = DEFAULT_TRANSFER) -> Tensor:
+    """G_sc (:func:`map_predictor`) on captures (B, P, 3, H, W) under ``patterns``. A capture finer
+    than G_sc's training grid ``resolution`` is reconstructed across both grids in ``transfer`` mode
+    (:func:`mitsvbrdf.resolution.reconstruct_across`; None: on its own grid). Returns its
+    (B, 10, H, W) encoded maps."""
+    return reconstruct_across(map_predictor(reconstructor, patterns, rig, use_spec=use_spec), images, resolution,
+                              transfer)
 
 
 def _check_use_spec(reconstructor: torch.nn.Module, use_spec: bool, where: str = "G_sc") -> None:

@@ -14,7 +14,7 @@ they trained.
 Per set, size and mode: the mean RMSE of each encoded map and their average, the flat-normal
 level (predicting n = +z) and seconds per material; then the paired per-material difference of
 the average and normal RMSE of every other mode against native (mean +- standard error), and of
-"fused" against "fused-area" (the roughness's low band from the texel centres against the area
+"fused" against "fused-area" (the roughness's low band from the texel phases against the area
 average) for the average and the roughness RMSE. The
 figure shows the demo material's normal maps at the largest size: ground truth, then each mode. Writes docs/benchmarks/resolution_transfer.md (+ CSV, PNG).
 """
@@ -114,12 +114,12 @@ def main() -> None:
             for mode in TRANSFER_MODES[1:]:
                 avg, nrm = (paired_difference(sel, "native", mode, k, "mode") for k in ("average", "normal"))
                 diff.append(f"| {set_name} | {size} | {mode} | {avg} | {nrm} |")
-    centres = ["| set | px | average, fused - fused-area | roughness, fused - fused-area |", "|---|---:|---:|---:|"]
+    phases = ["| set | px | average, fused - fused-area | roughness, fused - fused-area |", "|---|---:|---:|---:|"]
     for size in sizes:
         for set_name in dict.fromkeys(r["set"] for r in per_material):
             sel = [r for r in per_material if r["set"] == set_name and r["size"] == size]
             avg, rough = (paired_difference(sel, "fused-area", "fused", k, "mode") for k in ("average", "roughness"))
-            centres.append(f"| {set_name} | {size} | {avg} | {rough} |")
+            phases.append(f"| {set_name} | {size} | {avg} | {rough} |")
     net = args.networks.relative_to(ROOT) if args.networks.is_relative_to(ROOT) else args.networks
     text = (f"Command: `benchmarks/resolution_transfer.py --networks {net} --sizes {args.sizes} --n {args.n} "
             f"--spp {args.spp}`\n\nNetworks trained at {trained} px. Mean map RMSE (encoded maps) per set, size "
@@ -128,9 +128,9 @@ def main() -> None:
             "row of each size (the demo material, native) includes Dr.Jit's kernel compilation for that size.\n\n" +
             "\n".join(lines) + "\n\nPaired per-material differences against native (mean +- standard error; "
             "negative: better than native):\n\n" + "\n".join(diff) +
-            "\n\nThe roughness's low band from the capture sampled at the texel centres (\"fused\", the default) "
-            "against the area-averaged capture (\"fused-area\"), paired per material (negative: the centres "
-            "better):\n\n" + "\n".join(centres) +
+            "\n\nThe roughness's low band from the mean of the runs over the texel phases (\"fused\", the "
+            "default) against the area-averaged capture (\"fused-area\"), paired per material (negative: the "
+            "phases better):\n\n" + "\n".join(phases) +
             "\n\nNormal maps of the demo material at the largest size (encoded: ground truth, then "
             f"{', '.join(TRANSFER_MODES)}):\n\n![normals](resolution_transfer.png)\n")
     print(text)

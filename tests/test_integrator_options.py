@@ -18,6 +18,7 @@ from mitsvbrdf import backend
 from mitsvbrdf import patterns as pt
 from mitsvbrdf.capture.scene_file import write_integrator_options
 from mitsvbrdf.errors import SceneError
+from mitsvbrdf.render import control_variate as cv_module
 from mitsvbrdf.render.control_variate import LAST_MATERIALS, control_variate
 from mitsvbrdf.rig import DEFAULT_SCENE
 
@@ -435,6 +436,20 @@ def test_maps_that_require_gradients_keep_their_own_graph(rig):
     # the known part is linear in the pattern's radiance, uniform here: the gradients scale with it
     ratio = (rig.display_radiance(pt.uniform(value=0.7)) / rig.display_radiance(pt.uniform(value=0.5))).mean()
     torch.testing.assert_close(g2, g1 * ratio, rtol=1e-4, atol=1e-6 * float(g1.abs().max()))
+
+
+def test_the_lobe_grid_is_the_same_with_and_without_gradients(rig, monkeypatch):
+    """Without gradients the lobe grid is written chunk by chunk into its result, with them
+    concatenated from its chunks: both give the same values, at chunk sizes that split the
+    texels unevenly (7 texels a chunk at 8 x 8 px, B = 2, k = 16)."""
+    monkeypatch.setattr(cv_module, "CHUNK_ELEMENTS", 7 * 4 * 2 * 17 ** 2)
+    m = ms.SVBRDF.cat([textured_material(8, seed=5, roughness=(0.2, 0.6)), textured_material(8, seed=6, roughness=(0.2, 0.6))])
+    LAST_MATERIALS.clear()
+    plain = control_variate(m, pt.uniform(value=0.5), rig).lobe_grid
+    m.roughness.requires_grad_(True)
+    tracked = control_variate(m, pt.uniform(value=0.5), rig).lobe_grid
+    assert tracked.requires_grad and not plain.requires_grad
+    torch.testing.assert_close(tracked.detach(), plain, rtol=0, atol=0)
 
 
 def test_specular_control_variate_is_off_at_grazing_views(rig):

@@ -221,19 +221,31 @@ def _lobe_grid(rig: Rig, H: int, W: int, k: int, frame: Tensor, m_inv: Tensor, n
     d, g = (t.to(frame.device, frame.dtype) for t in _grid_geometry(rig, H, W, k))
     N, V = g.shape
     B = frame.shape[0] // N
-    # One batched product gives M^-1 w (rows 0-2: M^-1 times the view frame) and n . w (row 3).
-    rows = torch.cat([m_inv @ frame, n.reshape(-1, 1, 3)], 1).reshape(B, N, 4, 3)
-    det = torch.linalg.det(m_inv).abs().reshape(B, N, 1) / torch.pi
+    # One batched product per texel position gives M^-1 w (rows 0-2: M^-1 times the view frame)
+    # and n . w (row 3) for all B materials: (N, 4 B, 3) @ (N, 3, V), so that the grid's
+    # directions are not copied B times (broadcasting them over materials did, at a third of the time).
+    rows = torch.cat([m_inv @ frame, n.reshape(-1, 1, 3)], 1).reshape(B, N, 4, 3).transpose(0, 1).reshape(N, 4 * B, 3)
+    det = (torch.linalg.det(m_inv).abs() / torch.pi).reshape(B, N).T  # (N, B)
     step = max(1, CHUNK_ELEMENTS // (4 * B * V))
-    chunks = []  # concatenated, not assigned into one buffer: slice assignments' backward copies it whole
+    # Without gradients each chunk goes straight into the result; with them the chunks are
+    # concatenated, since slice assignments' backward copies the whole buffer per chunk.
+    out = None if torch.is_grad_enabled() and (rows.requires_grad or det.requires_grad) else \
+        torch.empty(B, N, 2, V, dtype=frame.dtype, device=frame.device)
+    chunks = []
     for i in range(0, N, step):
         j = min(N, i + step)
-        wl = rows[:, i:j] @ d[i:j]  # (B, n, 4, V)
-        gc = g[i:j]
-        len2 = wl[:, :, :3].square().sum(2).clamp_min(1e-24)
-        chunks.append(torch.stack([wl[:, :, 2].clamp_min(0.0) * (det[:, i:j] * gc) / len2.square(),
-                                   wl[:, :, 3].clamp_min(0.0) * (gc / torch.pi)], 2))
-    return torch.cat(chunks, 1)
+        wl = torch.bmm(rows[i:j], d[i:j]).view(j - i, B, 4, V)
+        x, y, z = wl[:, :, 0], wl[:, :, 1], wl[:, :, 2]
+        len2 = (x * x).addcmul_(y, y).addcmul_(z, z).clamp_min_(1e-24)
+        gc = g[i:j, None]
+        q = z.clamp_min(0.0) * (det[i:j, :, None] * gc) / len2.square_()  # (n, B, V)
+        qd = wl[:, :, 3].clamp_min(0.0) * (gc / torch.pi)
+        if out is None:
+            chunks.append(torch.stack([q, qd], 2))
+        else:
+            out[:, i:j, 0] = q.transpose(0, 1)
+            out[:, i:j, 1] = qd.transpose(0, 1)
+    return out if out is not None else torch.cat(chunks).transpose(0, 1).contiguous()
 
 
 def _grid_radiance(rig: Rig, k: int, rad: Tensor) -> Tensor:

@@ -138,6 +138,31 @@ def test_each_step_trains_on_a_window_of_the_larger_materials_rendered_where_it_
     assert len({window_of_step(32, 16, step_seed(0, s, 0)) for s in range(8)}) > 1  # the window moves
 
 
+def test_integrator_options_reach_the_training_captures_through_a_copy_of_the_scene(tmp_path):
+    t = Trainer(tiny("init", tmp_path / "run", extra=["render.integrator.ltc_grid=8",
+                                                      'render.integrator.sampler="independent"']), progress=False)
+    scene = (tmp_path / "run" / "scene.xml").read_text()
+    assert t.rig.source == t.stage.rig.source == str(tmp_path / "run" / "scene.xml")
+    assert '<integer name="ltc_grid" value="8"' in scene and '<string name="sampler" value="independent"' in scene
+    from mitsvbrdf.render.mitsuba import load_scene, variant_for
+
+    integrator = load_scene(str(t.rig.source), variant_for(torch.device("cpu")))[3]
+    assert (integrator.ltc_grid, integrator.sampler) == (8, "independent")
+
+
+def test_an_unknown_integrator_option_stops_the_run_before_its_first_step(tmp_path):
+    with pytest.raises(ms.errors.SceneError, match="ltc_gird"):
+        Trainer(tiny("init", tmp_path / "run", extra=["render.integrator.ltc_gird=8"]), progress=False)
+
+
+@pytest.mark.parametrize("extra, match", [(["render.integrator.ltc_grid=[8]"], "must be a string, integer or float"),
+                                          (["render.integrator.ltc_grid=8", 'render.method="ltc"'],
+                                           "need render.method = 'mitsuba'")])
+def test_integrator_options_that_cannot_apply_are_config_errors(extra, match):
+    with pytest.raises(ConfigError, match=match):
+        load_config(ROOT / "train" / "stage2-small.toml", extra)
+
+
 def test_networks_trained_on_windows_record_the_grid_they_were_cut_from(tmp_path):
     sets = ["train.steps=1", "train.batch=2", "render.spp=1", "data.size=16", "data.crop_from=32",
             f'out="{tmp_path}"', f'pretrained.networks="{ROOT / "mitsvbrdf" / "weights" / "networks.pt"}"']

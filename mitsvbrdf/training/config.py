@@ -12,7 +12,10 @@ Layout (every key optional except ``stage``; defaults below)::
                dark_metals (fraction of procedural materials with dark pure metals, F0 0.03-0.3);
                crop_from (0: materials at ``size``; N > size: materials at N px, each step's batch
                a random size x size window of them, rendered where it sits: Rig.window)
-    [render]   method = "mitsuba" | "ltc" | "reference"; spp; [render.noise] shot, read, bits
+    [render]   method = "mitsuba" | "ltc" | "reference"; spp; [render.noise] shot, read, bits;
+               [render.integrator] options of the scene's ``importance`` integrator for the training
+               captures (method "mitsuba"; e.g. ltc_grid = 8), written into a copy of the scene in
+               ``out`` (scene.xml); what is modelled stays the scene file's
     [model]    the stage's own options (see mitsvbrdf.training.stages: *Model dataclasses)
     [loss]     the stage's loss weights (*Loss dataclasses)
     [train]    steps, batch, lr, lr_min, weight_decay, grad_clip, checkpoint_every, log_every, device,
@@ -93,6 +96,9 @@ class RenderConfig:
     spp: int = 4
     ltc_mode: str = "exact"   # method = "ltc": "exact" (every LCD cell) or "prefiltered" (the paper's)
     noise: NoiseConfig = field(default_factory=NoiseConfig)
+    # method = "mitsuba": integrator options over the scene file's (plugins/importance_integrator.py),
+    # e.g. {ltc_grid = 8}: the estimator of the training captures, not what they model
+    integrator: dict[str, Any] = field(default_factory=dict)
 
 
 @dataclass
@@ -140,6 +146,10 @@ def _type_ok(value: Any, tp: Any) -> bool:
         return isinstance(value, (int, float)) and not isinstance(value, bool)
     if tp is int:
         return isinstance(value, int) and not isinstance(value, bool)
+    if origin is dict:
+        key, inner = typing.get_args(tp) or (str, Any)
+        return isinstance(value, dict) and all(_type_ok(k, key) and (inner is Any or _type_ok(v, inner))
+                                               for k, v in value.items())
     if origin is list:
         (inner,) = typing.get_args(tp) or (Any,)
         return isinstance(value, list) and all(inner is Any or _type_ok(v, inner) for v in value)
@@ -319,6 +329,12 @@ def _check_values(cfg: Config) -> None:
             map_weight_channels(weights)
         except ValueError as e:
             raise ConfigError(f"loss.map_weights: {e}") from None
+    for name, value in cfg.render.integrator.items():
+        if type(value) not in (str, int, float):
+            raise ConfigError(f"render.integrator.{name}: must be a string, integer or float, got {value!r}")
+    if cfg.render.integrator and cfg.render.method != "mitsuba":
+        raise ConfigError(f"render.integrator: integrator options need render.method = 'mitsuba', "
+                          f"got {cfg.render.method!r}")
     if cfg.data.source != "procedural" and not cfg.data.root:
         raise ConfigError(f"data.root: needed for data.source = {cfg.data.source!r}")
 

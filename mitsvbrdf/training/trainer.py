@@ -34,7 +34,7 @@ from ..data.datasets import MapFolderDataset, ProceduralDataset, StripDataset, c
 from ..errors import MitsvbrdfError
 from ..nets import network_record
 from ..nets.io import read_network_file
-from ..rig import Rig
+from ..rig import DEFAULT_SCENE, Rig
 from ..sensor import SensorNoise
 from ..svbrdf import SVBRDF
 from .config import Config, config_table
@@ -161,7 +161,7 @@ class Trainer:
         self.progress = progress and self.rank == 0
         self.stop_after = stop_after  # tests: stop as if killed after this many steps
         torch.manual_seed(cfg.seed)
-        rig = Rig.from_scene(cfg.scene or None)
+        rig = self._training_rig()
         noise = SensorNoise(**vars(cfg.render.noise))
         settings = RenderSettings(cfg.render.method, cfg.render.spp, noise if noise.active else None,
                                   cfg.render.ltc_mode)
@@ -199,6 +199,22 @@ class Trainer:
                     (self.out / f).unlink(missing_ok=True)
             self.out.mkdir(parents=True, exist_ok=True)
             (self.out / "config.json").write_text(json.dumps(config_table(cfg), indent=1, default=str))
+
+    def _training_rig(self) -> Rig:
+        """The config's rig; with ``render.integrator`` options, read from a copy of its scene file
+        in the run folder with those options on the integrator, loaded now so that an unknown or
+        bad option stops the run before its first step."""
+        options = self.cfg.render.integrator
+        if not options:
+            return Rig.from_scene(self.cfg.scene or None)
+        from ..capture.scene_file import write_integrator_options
+        from ..render.mitsuba import load_scene, variant_for
+
+        self.out.mkdir(parents=True, exist_ok=True)
+        name = "scene.xml" if self.world == 1 else f"scene.rank{self.rank}.xml"  # no two writers of one file
+        path = write_integrator_options(self.cfg.scene or DEFAULT_SCENE, self.out / name, **options)
+        load_scene(str(path), variant_for(self.device))
+        return Rig.from_scene(path)
 
     # -- files ------------------------------------------------------------------------------
     @property

@@ -30,6 +30,8 @@ ESTIMATORS = {"plain": {"sampler": "independent", "control_variate": "none"},
               "ltc-cells-window-4": {"control_variate": "ltc-cells", "ltc_window": 4},
               "ltc-cells-8-grid": {"control_variate": "ltc-cells", "ltc_grid": 8, "ltc_cells_min_roughness": 0.3,
                                    "ltc_window": 0},
+              "ltc-cells-8-grid-window": {"control_variate": "ltc-cells", "ltc_grid": 8, "ltc_cells_min_roughness": 0.2,
+                                          "ltc_window": 8, "ltc_window_min_roughness": 0.02},
               "ltc-cells-32-grid": {"control_variate": "ltc-cells", "ltc_grid": 32, "ltc_cells_min_roughness": 0.1,
                                     "ltc_window": 0}}
 

@@ -3,6 +3,8 @@ Mitsuba path with each estimator of the ``importance`` integrator.
 
     .venv/bin/python benchmarks/render_tradeoff.py            # writes docs/benchmarks/render_tradeoff*.{md,csv,png}
     .venv/bin/python benchmarks/render_tradeoff.py --quick    # smoke run, nothing written
+    .venv/bin/python benchmarks/render_tradeoff.py --procedural-only --estimators plain,ltc-cells,... --name NAME
+        # study 2 alone for some estimators: docs/benchmarks/render_tradeoff_procedural_NAME.{md,csv,png}
 
 Study 1 (roughness): the bundled example's normal and diffuse maps with constant roughness r and
 ks = 0.3, for r in {0.01, 0.05, 0.1, 0.3, 0.6, 1.0}, plus a near-grazing case (r = 0.3 with every
@@ -23,7 +25,7 @@ integrator before control variates: independent samples, no control variate), "s
 "diffuse-cv", "ltc-cv" (one radiance per texel for the specular lobe), "ltc-cv" with 4 and 16
 blocks and with the LCD sampled by the patterns' brightness, and "ltc-cells" (the default: both
 lobes under every cell's radiance, lobe grid 16, narrow lobes under an 8 x 8 window of cells)
-without the window, with a 4 x 4 one, and with grids 8 and 32.
+without the window, with a 4 x 4 one, with grids 8 (with and without the window) and 32.
 Prints tables, writes CSV + markdown, and plots of error vs. time and vs. spp.
 """
 
@@ -209,8 +211,17 @@ def main() -> None:
     ap.add_argument("--procedural-size", type=int, default=64)
     ap.add_argument("--skip-ltc-exact", action="store_true", help="leave out LTC-exact (by far the slowest method at 128 px)")
     ap.add_argument("--quick", action="store_true")
+    ap.add_argument("--procedural-only", action="store_true", help="study 2 alone (needs --name)")
+    ap.add_argument("--estimators", default="", help=f"comma-separated subset of: {', '.join(ESTIMATORS)}")
+    ap.add_argument("--name", default="", help="suffix of a --procedural-only report's files")
     ap.add_argument("--out", type=Path, default=ROOT / "docs" / "benchmarks")
     args = ap.parse_args()
+    names = [n for n in args.estimators.split(",") if n] or list(ESTIMATORS)
+    unknown = [n for n in names if n not in ESTIMATORS]
+    if unknown:
+        ap.error(f"unknown estimators {', '.join(unknown)}; known: {', '.join(ESTIMATORS)}")
+    if args.procedural_only and not args.name:
+        ap.error("--procedural-only writes render_tradeoff_procedural_NAME: give --name")
     load = OtherLoad()
     cases = [(r, None) for r in (0.01, 0.05, 0.1, 0.3, 0.6, 1.0)] + [(0.3, 70.0)]
     spps = SPPS
@@ -218,7 +229,10 @@ def main() -> None:
         args.error_size, args.time_size, cases, spps = 16, 32, [(0.05, None), (0.6, None)], (1, 4)
         args.procedural_n, args.procedural_size = 2, 16
     work = Path(tempfile.mkdtemp(prefix="render_tradeoff-"))
-    rigs = estimator_rigs(work)
+    rigs = estimator_rigs(work, names)
+    if args.procedural_only:
+        procedural_only(rigs, args, spps)
+        return
     rig = rigs[DEFAULT]
     pats = torch.cat([monograd(), random(n=5, seed=0), step_edges(n=4)])
 
@@ -299,6 +313,23 @@ def main() -> None:
     plot(rows, keys, proc_rows, args)
 
 
+def procedural_only(rigs: dict[str, ms.Rig], args, spps) -> None:
+    """Study 2 for the estimators of ``rigs`` alone, as render_tradeoff_procedural_NAME."""
+    with torch.no_grad():
+        rows, lines = procedural_study(rigs, args.procedural_n, args.procedural_size, spps)
+    command = " ".join(["benchmarks/render_tradeoff.py", "--procedural-only", f"--estimators {','.join(rigs)}",
+                        f"--name {args.name}", f"--procedural-n {args.procedural_n}",
+                        f"--procedural-size {args.procedural_size}"])
+    text = f"Command: `{command}`\n\n" + "\n".join(lines) + "\n"
+    print(text)
+    if args.quick:
+        return
+    stem = f"render_tradeoff_procedural_{args.name}"
+    write_report(args.out, stem, "Estimators on procedural materials", "render_tradeoff.py",
+                 text + f"\n![procedural: error vs spp and time]({stem}.png)\n", rows)
+    plot_procedural(rows, args, args.out / f"{stem}.png")
+
+
 def plot(rows: list[dict], keys: list[str], proc_rows: list[dict], args) -> None:
     import matplotlib
 
@@ -323,9 +354,17 @@ def plot(rows: list[dict], keys: list[str], proc_rows: list[dict], args) -> None
     fig.tight_layout()
     fig.savefig(args.out / "render_tradeoff.png", dpi=120)
     plt.close(fig)
+    plot_procedural(proc_rows, args, args.out / "render_tradeoff_procedural.png")
+
+
+def plot_procedural(proc_rows: list[dict], args, path: Path) -> None:
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
 
     fig, axes = plt.subplots(1, 2, figsize=(11, 4.5))
-    for est in ESTIMATORS:
+    for est in dict.fromkeys(r["estimator"] for r in proc_rows):
         pts = [r for r in proc_rows if r["estimator"] == est]
         for ax, x in zip(axes, ("spp", "seconds_batch")):
             ax.plot([r[x] for r in pts], [r["median"] for r in pts], "o-", label=est,
@@ -337,7 +376,7 @@ def plot(rows: list[dict], keys: list[str], proc_rows: list[dict], args) -> None
     axes[0].legend(fontsize=8)
     fig.suptitle(f"Procedural {args.procedural_size} px materials: MonoGrad, ColorGrad, adaptive patterns")
     fig.tight_layout()
-    fig.savefig(args.out / "render_tradeoff_procedural.png", dpi=120)
+    fig.savefig(path, dpi=120)
     plt.close(fig)
 
 

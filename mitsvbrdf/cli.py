@@ -229,6 +229,21 @@ def cmd_patterns_pca(args: argparse.Namespace) -> int:
     return 0
 
 
+def cmd_average_networks(args: argparse.Namespace) -> int:
+    from .nets.io import average_exports
+
+    if len(args.exports) < 2:
+        raise MitsvbrdfError(f"average-networks needs at least two exports, got {len(args.exports)}")
+    out = check_out_file("--out", args.out)
+    averaged = average_exports(args.exports)
+    out.parent.mkdir(parents=True, exist_ok=True)
+    tmp = out.with_suffix(out.suffix + ".tmp")
+    torch.save(averaged, tmp)
+    tmp.replace(out)
+    print(f"wrote {out}: the weight average of {len(args.exports)} exports ({', '.join(args.exports)})")
+    return 0
+
+
 def cmd_train_chain(args: argparse.Namespace) -> int:
     chain = load_chain(args.chain, time_budget=args.time_budget, out=args.out)
     check_out_dir("--out" if args.out else f"{args.chain}: out", chain.out)
@@ -347,6 +362,11 @@ def build_parser() -> argparse.ArgumentParser:
     tc.add_argument("--set", action="append", metavar="KEY=VALUE", help="override a key in every stage")
     tc.add_argument("--quiet", action="store_true", help="no progress bars")
     tc.set_defaults(func=cmd_train_chain)
+    av = sub.add_parser("average-networks", help="the weight average of exports of one chain's runs (e.g. "
+                        "continuations of one export under other seeds or losses)")
+    av.add_argument("exports", nargs="+", help="networks.pt files: the same networks and acquisition settings")
+    av.add_argument("--out", required=True, help="output networks.pt")
+    av.set_defaults(func=cmd_average_networks)
     sc = sub.add_parser("scene", help="copy the default rig's scene file out (to edit it or calibrate into it)")
     sc.add_argument("--out", required=True, help="scene file to write (refused when it exists)")
     sc.set_defaults(func=cmd_scene)

@@ -126,3 +126,51 @@ def test_diffuse_ratio_stays_finite_where_pattern_and_image_are_black():
     r.sum().backward()
     assert torch.equal(r, torch.zeros_like(r))
     assert torch.isfinite(images.grad).all() and torch.isfinite(irradiance.grad).all()
+
+
+# ---- weight averages of exports ---------------------------------------------------------------
+
+def _export(path, seed, **svbrdf):
+    """A stage export: an L_0 shared by every file (a frozen network) and a G_sc of its own."""
+    from mitsvbrdf.nets import network_record
+
+    torch.manual_seed(0)
+    l0 = LearnedPattern(cells=(4, 4))
+    torch.manual_seed(seed)
+    gsc = SVBRDFPredictor(num_images=2, width=4, **svbrdf)
+    torch.save({"l0": network_record(l0), "svbrdf": network_record(gsc), "acquisition": {"resolution": 16}}, path)
+    return gsc
+
+
+def test_the_average_of_exports_is_each_weights_mean_and_keeps_what_they_share(tmp_path):
+    from mitsvbrdf.cli import main
+
+    a, b = _export(tmp_path / "a.pt", 1), _export(tmp_path / "b.pt", 2)
+    assert main(["average-networks", str(tmp_path / "a.pt"), str(tmp_path / "b.pt"), "--out", str(tmp_path / "m.pt")]) == 0
+    got = torch.load(tmp_path / "m.pt", weights_only=True)
+    for key, wa in a.state_dict().items():
+        torch.testing.assert_close(got["svbrdf"]["state"][key], (wa + b.state_dict()[key]) / 2)
+    shared = torch.load(tmp_path / "a.pt", weights_only=True)["l0"]["state"]
+    assert all(torch.equal(got["l0"]["state"][k], v) for k, v in shared.items())
+    assert got["acquisition"] == {"resolution": 16}
+
+
+def test_exports_of_other_architectures_or_settings_are_not_averaged(tmp_path):
+    from mitsvbrdf.nets.io import average_exports
+
+    _export(tmp_path / "a.pt", 1)
+    _export(tmp_path / "wide.pt", 2, use_spec=False)
+    with pytest.raises(NetworkFileError, match="'svbrdf' is not a SVBRDFPredictor"):
+        average_exports([tmp_path / "a.pt", tmp_path / "wide.pt"])
+    other = torch.load(tmp_path / "a.pt", weights_only=True) | {"acquisition": {"resolution": 32}}
+    torch.save(other, tmp_path / "r32.pt")
+    with pytest.raises(NetworkFileError, match="its 'acquisition'"):
+        average_exports([tmp_path / "a.pt", tmp_path / "r32.pt"])
+
+
+def test_averaging_one_export_is_a_clear_error(tmp_path, capsys):
+    from mitsvbrdf.cli import main
+
+    _export(tmp_path / "a.pt", 1)
+    assert main(["average-networks", str(tmp_path / "a.pt"), "--out", str(tmp_path / "m.pt")]) == 2
+    assert "at least two exports" in capsys.readouterr().err

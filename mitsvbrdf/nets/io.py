@@ -76,3 +76,51 @@ def load_network(path: str | Path, expect: type[nn.Module] | None = None) -> nn.
 
 def parameter_count(net: nn.Module) -> int:
     return sum(p.numel() for p in net.parameters())
+
+
+def average_exports(paths: list[str | Path]) -> dict:
+    """The uniform weight average of stage exports (``{name: network record, ...}``, e.g. runs that
+    continued one export under different seeds or losses: a "model soup").
+
+    Every file must hold the same networks, each of the same class and constructor arguments, and
+    the same non-network entries (the acquisition settings); floating-point weights are averaged,
+    every other tensor (counters) must agree. Averaging only helps where the runs started from one
+    set of weights and stayed in its basin; networks a run kept frozen come out unchanged.
+    Returns the averaged export, ready for ``torch.save``."""
+    if len(paths) < 2:
+        raise ValueError(f"averaging needs at least two exports, got {len(paths)}")
+    exports = [read_network_file(p, "stage export") for p in paths]
+    first, where = exports[0], str(paths[0])
+    for path, ex in zip(paths[1:], exports[1:]):
+        if not isinstance(ex, dict) or set(ex) != set(first):
+            raise NetworkFileError(f"{path}: holds {sorted(ex) if isinstance(ex, dict) else type(ex).__name__}, "
+                                   f"{where} holds {sorted(first)}: not exports of one chain")
+    out = {}
+    for name, rec in first.items():
+        is_record = isinstance(rec, dict) and {"class", "config", "state"} <= set(rec)
+        if not is_record:
+            for path, ex in zip(paths[1:], exports[1:]):
+                if ex[name] != rec:
+                    raise NetworkFileError(f"{path}: its {name!r} ({ex[name]!r}) differs from {where}'s ({rec!r})")
+            out[name] = rec
+            continue
+        for path, ex in zip(paths[1:], exports[1:]):
+            other = ex[name]
+            if not isinstance(other, dict) or (other.get("class"), other.get("config")) != (rec["class"], rec["config"]):
+                raise NetworkFileError(f"{path}: its {name!r} is not a {rec['class']}({rec['config']}) as in {where}")
+            if set(other["state"]) != set(rec["state"]):
+                raise NetworkFileError(f"{path}: the weights of its {name!r} have other names than {where}'s")
+        state = {}
+        for key, t in rec["state"].items():
+            ts = [ex[name]["state"][key] for ex in exports]
+            if any(x.shape != t.shape for x in ts):
+                raise NetworkFileError(f"{name}.{key}: shapes {[tuple(x.shape) for x in ts]} differ between the exports")
+            if t.is_floating_point():
+                state[key] = (torch.stack([x.double() for x in ts]).mean(0)).to(t.dtype)
+            elif all(torch.equal(x, t) for x in ts):
+                state[key] = t
+            else:
+                raise NetworkFileError(f"{name}.{key}: a non-float tensor that differs between the exports")
+        out[name] = {"class": rec["class"], "config": rec["config"], "state": state}
+        network_from_record(out[name], f"the average of {name!r}")  # it must still build
+    return out

@@ -11,7 +11,7 @@ from __future__ import annotations
 from pathlib import Path
 
 import mitsvbrdf as ms
-from mitsvbrdf.capture.scene_file import write_integrator_options
+from mitsvbrdf.scene_xml import write_integrator_options
 from mitsvbrdf.rig import DEFAULT_SCENE
 
 DEFAULT = "ltc-cells"

@@ -42,7 +42,7 @@ from pathlib import Path
 
 import torch
 
-from mitsvbrdf.capture.scene_file import write_integrator_options
+from mitsvbrdf.scene_xml import write_integrator_options
 from mitsvbrdf.evaluation import paired
 from mitsvbrdf.rig import DEFAULT_SCENE
 

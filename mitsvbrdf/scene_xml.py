@@ -1,4 +1,5 @@
-"""Read the parts of a Mitsuba 3 XML scene file that the torch side of mitsvbrdf needs.
+"""Read the parts of a Mitsuba 3 XML scene file that the torch side of mitsvbrdf needs, and write
+edited copies of one (:func:`edit_scene`; :func:`write_integrator_options` for estimator variants).
 
 The rig's scene files (the default one is ``mitsvbrdf/scenes/lcd_rig.xml``) are real Mitsuba
 scenes (Mitsuba loads them once the project's plugins are registered). The torch renderers, the
@@ -16,6 +17,7 @@ import re
 import xml.etree.ElementTree as ET
 from dataclasses import dataclass, field
 from pathlib import Path
+from typing import Callable
 
 import numpy as np
 
@@ -199,3 +201,38 @@ def load_scene_xml(path: str | Path, **overrides: object) -> SceneNode:
         defaults[d.attrib["name"]] = d.attrib["value"]
     defaults.update({k: str(v) for k, v in overrides.items()})
     return _parse_node(root, defaults, path)
+
+
+def edit_scene(scene: str | Path, out: str | Path, edit: Callable[[ET.Element], None]) -> Path:
+    """Copy ``scene`` to ``out`` after ``edit(root)`` changed its element tree; comments (also
+    those before the root element, which ElementTree drops) are kept. Returns ``out``."""
+    scene, out = Path(scene), Path(out)
+    try:
+        text = scene.read_text()
+        tree = ET.ElementTree(ET.fromstring(text, parser=ET.XMLParser(target=ET.TreeBuilder(insert_comments=True))))
+    except (OSError, ET.ParseError) as e:
+        raise SceneError(f"{scene}: cannot read the scene file ({e})") from e
+    edit(tree.getroot())
+    ET.indent(tree, space="    ")
+    out.parent.mkdir(parents=True, exist_ok=True)
+    out.write_text(text[:text.find("<scene")] + ET.tostring(tree.getroot(), encoding="unicode") + "\n")
+    return out
+
+
+def write_integrator_options(scene: str | Path, out: str | Path, **options: str | int | float) -> Path:
+    """Copy ``scene`` to ``out`` with these parameters on its integrator (``sampler="independent"``,
+    ``cv_blocks=16``, ...; see plugins/importance_integrator.py), replacing any of the same name."""
+    tags = {str: "string", int: "integer", float: "float"}
+
+    def edit(root: ET.Element) -> None:
+        integ = root.find("integrator")
+        if integ is None:
+            raise SceneError(f"{scene}: the scene has no <integrator>")
+        for name, value in options.items():
+            if type(value) not in tags:
+                raise ValueError(f"integrator option {name}={value!r}: a string, integer or float")
+            for old in [e for e in integ if e.get("name") == name]:
+                integ.remove(old)
+            integ.append(ET.Element(tags[type(value)], {"name": name, "value": str(value)}))
+
+    return edit_scene(scene, out, edit)

@@ -16,7 +16,7 @@ import torch
 import mitsvbrdf as ms
 from mitsvbrdf import backend
 from mitsvbrdf import patterns as pt
-from mitsvbrdf.capture.scene_file import write_integrator_options
+from mitsvbrdf.scene_xml import write_integrator_options
 from mitsvbrdf.errors import SceneError
 from mitsvbrdf.render import control_variate as cv_module
 from mitsvbrdf.render.control_variate import LAST_MATERIALS, control_variate

@@ -41,8 +41,7 @@ import numpy as np
 
 from ..errors import SceneError
 from ..rig import Rig, texel_grid
-from ..scene_xml import load_scene_xml
-from .scene_file import edit_scene
+from ..scene_xml import edit_scene, load_scene_xml
 
 # Mitsuba local camera frame (x left, y up, z forward) -> the usual vision frame (x right, y down).
 _FLIP = np.diag([-1.0, -1.0, 1.0])

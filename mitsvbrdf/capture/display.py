@@ -23,7 +23,7 @@ from ..errors import SceneError
 from ..render import render
 from ..rig import Rig
 from ..svbrdf import SVBRDF
-from .scene_file import edit_scene
+from ..scene_xml import edit_scene
 
 
 def fit_gamma(drives: np.ndarray, means: np.ndarray, min_drive: float = 0.05) -> float:

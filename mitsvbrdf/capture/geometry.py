@@ -19,7 +19,7 @@ import numpy as np
 
 from ..errors import SceneError
 from ..rig import Rig
-from .scene_file import edit_scene
+from ..scene_xml import edit_scene
 
 
 def cell_local(cells: np.ndarray, grid: tuple[int, int]) -> np.ndarray:

@@ -1,5 +1,5 @@
-"""Calibration results written back into a Mitsuba scene file, and read from it; scene variants
-with other integrator options.
+"""Calibration results written back into a Mitsuba scene file, and read from it (the copy-and-edit
+machinery, :func:`mitsvbrdf.scene_xml.edit_scene`, lives with the scene-file reader).
 
 Geometry and the display model go into the scene's own elements (the LCD shape's ``to_world``,
 the ``lcd`` emitter's parameters, the sensor's ``fov`` and principal point), so the renderers and
@@ -14,29 +14,13 @@ from __future__ import annotations
 
 import xml.etree.ElementTree as ET
 from pathlib import Path
-from typing import Callable
 
 import numpy as np
 
 from ..checks import check_out_file
 from ..errors import SceneError
+from ..scene_xml import edit_scene
 from .hdr import Response
-
-
-def edit_scene(scene: str | Path, out: str | Path, edit: Callable[[ET.Element], None]) -> Path:
-    """Copy ``scene`` to ``out`` after ``edit(root)`` changed its element tree; comments (also
-    those before the root element, which ElementTree drops) are kept. Returns ``out``."""
-    scene, out = Path(scene), Path(out)
-    try:
-        text = scene.read_text()
-        tree = ET.ElementTree(ET.fromstring(text, parser=ET.XMLParser(target=ET.TreeBuilder(insert_comments=True))))
-    except (OSError, ET.ParseError) as e:
-        raise SceneError(f"{scene}: cannot read the scene file ({e})") from e
-    edit(tree.getroot())
-    ET.indent(tree, space="    ")
-    out.parent.mkdir(parents=True, exist_ok=True)
-    out.write_text(text[:text.find("<scene")] + ET.tostring(tree.getroot(), encoding="unicode") + "\n")
-    return out
 
 
 def set_defaults(root: ET.Element, **values: str) -> None:
@@ -48,25 +32,6 @@ def set_defaults(root: ET.Element, **values: str) -> None:
         else:
             at = len(root.findall("default"))
             root.insert(at, ET.Element("default", {"name": name, "value": value}))
-
-
-def write_integrator_options(scene: str | Path, out: str | Path, **options: str | int | float) -> Path:
-    """Copy ``scene`` to ``out`` with these parameters on its integrator (``sampler="independent"``,
-    ``cv_blocks=16``, ...; see plugins/importance_integrator.py), replacing any of the same name."""
-    tags = {str: "string", int: "integer", float: "float"}
-
-    def edit(root: ET.Element) -> None:
-        integ = root.find("integrator")
-        if integ is None:
-            raise SceneError(f"{scene}: the scene has no <integrator>")
-        for name, value in options.items():
-            if type(value) not in tags:
-                raise ValueError(f"integrator option {name}={value!r}: a string, integer or float")
-            for old in [e for e in integ if e.get("name") == name]:
-                integ.remove(old)
-            integ.append(ET.Element(tags[type(value)], {"name": name, "value": str(value)}))
-
-    return edit_scene(scene, out, edit)
 
 
 def write_camera_calibration(scene: str | Path, out: str | Path, *, response: Response | None = None,

@@ -207,7 +207,7 @@ class Trainer:
         options = self.cfg.render.integrator
         if not options:
             return Rig.from_scene(self.cfg.scene or None)
-        from ..capture.scene_file import write_integrator_options
+        from ..scene_xml import write_integrator_options
         from ..render.mitsuba import load_scene, variant_for
 
         self.out.mkdir(parents=True, exist_ok=True)

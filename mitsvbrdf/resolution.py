@@ -6,8 +6,8 @@ texel, so on a 256 x 256 capture of the same sample every structure spans 256 / 
 texels than in training. The low-frequency cues of the normals (a tilted region shades all five
 images alike, only its neighbourhood tells tilt from albedo) then fall outside what the networks
 see. The shipped networks (R = 64) bring the sample materials' normal RMSE to half the
-flat-normal level at 64 px (0.054 against 0.105), but only a fifth below it on a 256 px capture
-(0.091 against 0.114); reconstructed across the grids ("fused"), 0.061
+flat-normal level at 64 px (0.051 against 0.105), but only a fifth below it on a 256 px capture
+(0.090 against 0.114); reconstructed across the grids ("fused"), 0.058
 (``benchmarks/resolution_transfer.py``, docs/benchmarks/resolution_transfer.md).
 
 Modes (:data:`TRANSFER_MODES`) for a capture on an H x W grid finer than the networks' R x R

@@ -230,16 +230,12 @@ def cmd_patterns_pca(args: argparse.Namespace) -> int:
 
 
 def cmd_average_networks(args: argparse.Namespace) -> int:
-    from .nets.io import average_exports
+    from .nets.io import average_exports, write_network_file
 
     if len(args.exports) < 2:
         raise MitsvbrdfError(f"average-networks needs at least two exports, got {len(args.exports)}")
     out = check_out_file("--out", args.out)
-    averaged = average_exports(args.exports)
-    out.parent.mkdir(parents=True, exist_ok=True)
-    tmp = out.with_suffix(out.suffix + ".tmp")
-    torch.save(averaged, tmp)
-    tmp.replace(out)
+    write_network_file(out, average_exports(args.exports))
     print(f"wrote {out}: the weight average of {len(args.exports)} exports ({', '.join(args.exports)})")
     return 0
 

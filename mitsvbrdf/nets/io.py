@@ -45,12 +45,19 @@ def network_from_record(rec: dict, where: str = "record") -> nn.Module:
     return net
 
 
-def save_network(path: str | Path, net: nn.Module) -> None:
+def write_network_file(path: str | Path, contents: dict) -> Path:
+    """Write a network file (one record, or a stage export {name: record, ...}) atomically: into a
+    temporary file beside it, then renamed, so a crash never leaves half a file under its name."""
     path = Path(path)
     path.parent.mkdir(parents=True, exist_ok=True)
     tmp = path.with_suffix(path.suffix + ".tmp")
-    torch.save(network_record(net), tmp)
+    torch.save(contents, tmp)
     tmp.replace(path)
+    return path
+
+
+def save_network(path: str | Path, net: nn.Module) -> None:
+    write_network_file(path, network_record(net))
 
 
 def read_network_file(path: str | Path, what: str = "network", hint: str = ""):

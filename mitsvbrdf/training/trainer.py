@@ -33,7 +33,7 @@ from ..data.augment import crop_maps
 from ..data.datasets import MapFolderDataset, ProceduralDataset, StripDataset, collate_svbrdf
 from ..errors import MitsvbrdfError
 from ..nets import network_record
-from ..nets.io import read_network_file
+from ..nets.io import read_network_file, write_network_file
 from ..rig import DEFAULT_SCENE, Rig
 from ..sensor import SensorNoise
 from ..svbrdf import SVBRDF
@@ -311,9 +311,7 @@ class Trainer:
                 # the texel grid they trained on)
                 # the texel grid the networks learned: with windows, that of the materials they were cut from
                 recs[SETTINGS_KEY] = replace(settings, resolution=self.cfg.data.crop_from or self.cfg.data.size).record()
-            tmp = path.with_suffix(".tmp")
-            torch.save(recs, tmp)
-            os.replace(tmp, path)
+            write_network_file(path, recs)
         return path
 
     def _write_metrics(self) -> None:

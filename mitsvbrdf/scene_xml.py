@@ -219,10 +219,14 @@ def edit_scene(scene: str | Path, out: str | Path, edit: Callable[[ET.Element], 
     return out
 
 
+#: The Python types an integrator option may have, and their scene-file tags.
+INTEGRATOR_OPTION_TAGS = {str: "string", int: "integer", float: "float"}
+
+
 def write_integrator_options(scene: str | Path, out: str | Path, **options: str | int | float) -> Path:
     """Copy ``scene`` to ``out`` with these parameters on its integrator (``sampler="independent"``,
     ``cv_blocks=16``, ...; see plugins/importance_integrator.py), replacing any of the same name."""
-    tags = {str: "string", int: "integer", float: "float"}
+    tags = INTEGRATOR_OPTION_TAGS
 
     def edit(root: ET.Element) -> None:
         integ = root.find("integrator")

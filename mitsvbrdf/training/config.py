@@ -54,6 +54,7 @@ from pathlib import Path
 from typing import Any
 
 from ..errors import MitsvbrdfError
+from ..scene_xml import INTEGRATOR_OPTION_TAGS
 
 TEST_SEED_BASE = 1_000_000
 
@@ -330,7 +331,7 @@ def _check_values(cfg: Config) -> None:
         except ValueError as e:
             raise ConfigError(f"loss.map_weights: {e}") from None
     for name, value in cfg.render.integrator.items():
-        if type(value) not in (str, int, float):
+        if type(value) not in INTEGRATOR_OPTION_TAGS:
             raise ConfigError(f"render.integrator.{name}: must be a string, integer or float, got {value!r}")
     if cfg.render.integrator and cfg.render.method != "mitsuba":
         raise ConfigError(f"render.integrator: integrator options need render.method = 'mitsuba', "

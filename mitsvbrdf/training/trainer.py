@@ -35,6 +35,7 @@ from ..errors import MitsvbrdfError
 from ..nets import network_record
 from ..nets.io import read_network_file, write_network_file
 from ..rig import DEFAULT_SCENE, Rig
+from ..scene_xml import write_integrator_options
 from ..sensor import SensorNoise
 from ..svbrdf import SVBRDF
 from .config import Config, config_table
@@ -207,7 +208,6 @@ class Trainer:
         options = self.cfg.render.integrator
         if not options:
             return Rig.from_scene(self.cfg.scene or None)
-        from ..scene_xml import write_integrator_options
         from ..render.mitsuba import load_scene, variant_for
 
         self.out.mkdir(parents=True, exist_ok=True)

@@ -27,8 +27,9 @@ from typing import Callable, ClassVar
 import torch
 from torch import Tensor, nn
 
-from ..acquisition import AcquisitionSettings, predict, reconstruct_maps
+from ..acquisition import AcquisitionSettings, maps_to_svbrdf, predict, reconstruct_maps
 from ..errors import MitsvbrdfError
+from ..importance import importance
 from ..losses import PLAIN_MAP_WEIGHTS, importance_consistency_loss, inverse_importance_loss, map_l1
 from ..nets import (Initializer, LearnedPattern, LightingPredictor, PatternSet, PointPredictor, SVBRDFPredictor,
                     network_from_record, with_diffuse_ratio)
@@ -133,11 +134,27 @@ def _generator(seed: int, device) -> torch.Generator:
     return torch.Generator(device=device).manual_seed(seed)
 
 
+@dataclass
+class LpdfQuadratureModel:
+    """How a stage computes L_pdf: texel stride and quadrature orders (:class:`AcquisitionSettings`)."""
+
+    lpdf_stride: int = 4
+    lpdf_cell_order: int = 2
+    lpdf_lobe_grid: int = 32
+
+    def lpdf(self, svbrdf: SVBRDF, rig: Rig) -> Tensor:
+        """L_pdf (B, 1, h, w) of ``svbrdf``'s normal and roughness maps."""
+        settings = AcquisitionSettings(lpdf_stride=self.lpdf_stride, lpdf_cell_order=self.lpdf_cell_order,
+                                       lpdf_lobe_grid=self.lpdf_lobe_grid)
+        return importance(svbrdf.normal, svbrdf.roughness, rig, texel_stride=settings.lpdf_stride,
+                          settings=settings.lpdf_quadrature)
+
+
 # ---- init ----------------------------------------------------------------------------------
 
 
 @dataclass
-class InitModel:
+class InitModel(LpdfQuadratureModel):
     initializer_width: int = 16
     initializer_blocks: list[int] = field(default_factory=lambda: [1, 1, 1])
     # false: L_0 keeps its starting values (a warm start's pattern, else uniform 0.9) and only the
@@ -150,6 +167,11 @@ class InitModel:
 class InitLoss:
     maps: float = 1.0
     map_weights: list[float] = field(default_factory=lambda: list(PLAIN_MAP_WEIGHTS))
+    # L1 between the L_pdf of the initializer's estimate and that of the truth (not in the paper).
+    # Per-texel L1 lets an unsure initializer hedge to flat normals and trade the missing tilt for
+    # roughness; L_pdf, all the later stages take from it, then cannot tell a bumpy material from
+    # a rough dielectric (docs/benchmarks/pattern_gallery.md). 0: off, and not computed.
+    lpdf: float = 0.0
 
 
 class InitStage(TrainingStage):
@@ -167,15 +189,24 @@ class InitStage(TrainingStage):
     def forward(self, batch: SVBRDF, seed: int) -> dict[str, Tensor]:
         g = _generator(seed, batch.device)
         _, i0 = self.first_image(batch, seed, g)
-        l_maps = map_l1(self.nets["initializer"](i0), batch.encoded(), self.loss_cfg.map_weights)
-        return {"loss": self.loss_cfg.maps * l_maps, "maps": l_maps}
+        pred = self.nets["initializer"](i0)
+        l_maps = map_l1(pred, batch.encoded(), self.loss_cfg.map_weights)
+        out = {"loss": self.loss_cfg.maps * l_maps, "maps": l_maps}
+        if self.loss_cfg.lpdf:
+            with torch.no_grad():
+                target = self.model_cfg.lpdf(batch, self.rig)
+            # the estimate as acquisitions decode it (predict), so the loss sees the L_pdf they use
+            l_lpdf = (self.model_cfg.lpdf(maps_to_svbrdf(pred), self.rig) - target).abs().mean()
+            out["lpdf"] = l_lpdf
+            out["loss"] = out["loss"] + self.loss_cfg.lpdf * l_lpdf
+        return out
 
 
 # ---- stage 1 and 2 -------------------------------------------------------------------------
 
 
 @dataclass
-class AdaptiveModel:
+class AdaptiveModel(LpdfQuadratureModel):
     lighting_width: int = 12
     lighting_blocks: list[int] = field(default_factory=lambda: [1, 1, 1])
     point_hidden: int = 64
@@ -183,9 +214,6 @@ class AdaptiveModel:
     svbrdf_width: int = 16
     svbrdf_blocks: list[int] = field(default_factory=lambda: [1, 1, 1])
     lpdf_from: str = "initializer"   # "initializer" | "ground_truth" | "uniform" (Diff. Init. ablation)
-    lpdf_stride: int = 4
-    lpdf_cell_order: int = 2         # L_pdf quadrature orders (AcquisitionSettings)
-    lpdf_lobe_grid: int = 32
     use_spec: bool = True            # G_sc's second encoder on I^spec (False: Table 3's "Adaptive")
     diffuse_ratio: bool = False      # G_sc also sees each image over its L^d (not in the paper; docs/training.md)
 

@@ -240,6 +240,15 @@ def cmd_average_networks(args: argparse.Namespace) -> int:
     return 0
 
 
+def cmd_replace_networks(args: argparse.Namespace) -> int:
+    from .nets.io import replace_networks, write_network_file
+
+    out = check_out_file("--out", args.out)
+    write_network_file(out, replace_networks(args.base, args.donor, args.networks))
+    print(f"wrote {out}: {args.base} with {', '.join(args.networks)} from {args.donor}")
+    return 0
+
+
 def cmd_train_chain(args: argparse.Namespace) -> int:
     chain = load_chain(args.chain, time_budget=args.time_budget, out=args.out)
     check_out_dir("--out" if args.out else f"{args.chain}: out", chain.out)
@@ -363,6 +372,14 @@ def build_parser() -> argparse.ArgumentParser:
     av.add_argument("exports", nargs="+", help="networks.pt files: the same networks and acquisition settings")
     av.add_argument("--out", required=True, help="output networks.pt")
     av.set_defaults(func=cmd_average_networks)
+    rp = sub.add_parser("replace-networks", help="an export with some of its networks taken from another "
+                        "(e.g. an initializer trained further, put back in front of its G_l and G_sc)")
+    rp.add_argument("base", help="networks.pt whose other networks and acquisition settings stay")
+    rp.add_argument("--from", dest="donor", required=True, help="networks.pt to take the networks from")
+    rp.add_argument("--networks", nargs="+", required=True, metavar="NAME",
+                    help="names of the networks to take (e.g. l0 initializer)")
+    rp.add_argument("--out", required=True, help="output networks.pt")
+    rp.set_defaults(func=cmd_replace_networks)
     sc = sub.add_parser("scene", help="copy the default rig's scene file out (to edit it or calibrate into it)")
     sc.add_argument("--out", required=True, help="scene file to write (refused when it exists)")
     sc.set_defaults(func=cmd_scene)

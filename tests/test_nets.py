@@ -174,3 +174,30 @@ def test_averaging_one_export_is_a_clear_error(tmp_path, capsys):
     _export(tmp_path / "a.pt", 1)
     assert main(["average-networks", str(tmp_path / "a.pt"), "--out", str(tmp_path / "m.pt")]) == 2
     assert "at least two exports" in capsys.readouterr().err
+
+
+# ---- networks taken from another export --------------------------------------------------------
+
+def test_replacing_a_network_takes_its_weights_from_the_donor_and_keeps_the_rest(tmp_path):
+    from mitsvbrdf.cli import main
+
+    _export(tmp_path / "base.pt", 1)
+    donor = _export(tmp_path / "donor.pt", 2)
+    assert main(["replace-networks", str(tmp_path / "base.pt"), "--from", str(tmp_path / "donor.pt"),
+                 "--networks", "svbrdf", "--out", str(tmp_path / "m.pt")]) == 0
+    got, base = (torch.load(tmp_path / p, weights_only=True) for p in ("m.pt", "base.pt"))
+    assert all(torch.equal(got["svbrdf"]["state"][k], v) for k, v in donor.state_dict().items())
+    assert all(torch.equal(got["l0"]["state"][k], v) for k, v in base["l0"]["state"].items())
+    assert got["acquisition"] == base["acquisition"]
+
+
+def test_a_network_the_donor_lacks_or_of_another_class_is_not_taken(tmp_path):
+    from mitsvbrdf.nets import network_record
+    from mitsvbrdf.nets.io import replace_networks
+
+    _export(tmp_path / "base.pt", 1)
+    torch.save({"l0": network_record(SVBRDFPredictor(num_images=2, width=4))}, tmp_path / "donor.pt")
+    with pytest.raises(NetworkFileError, match="no network 'initializer'; its networks are \\['l0'\\]"):
+        replace_networks(tmp_path / "base.pt", tmp_path / "donor.pt", ["initializer"])
+    with pytest.raises(NetworkFileError, match="'l0' is a SVBRDFPredictor"):
+        replace_networks(tmp_path / "base.pt", tmp_path / "donor.pt", ["l0"])

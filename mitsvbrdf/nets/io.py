@@ -104,8 +104,7 @@ def average_exports(paths: list[str | Path]) -> dict:
                                    f"{where} holds {sorted(first)}: not exports of one chain")
     out = {}
     for name, rec in first.items():
-        is_record = isinstance(rec, dict) and {"class", "config", "state"} <= set(rec)
-        if not is_record:
+        if not _is_network_record(rec):
             for path, ex in zip(paths[1:], exports[1:]):
                 if ex[name] != rec:
                     raise NetworkFileError(f"{path}: its {name!r} ({ex[name]!r}) differs from {where}'s ({rec!r})")
@@ -130,4 +129,37 @@ def average_exports(paths: list[str | Path]) -> dict:
                 raise NetworkFileError(f"{name}.{key}: a non-float tensor that differs between the exports")
         out[name] = {"class": rec["class"], "config": rec["config"], "state": state}
         network_from_record(out[name], f"the average of {name!r}")  # it must still build
+    return out
+
+
+def _is_network_record(rec) -> bool:
+    return isinstance(rec, dict) and {"class", "config", "state"} <= set(rec)
+
+
+def replace_networks(base: str | Path, donor: str | Path, names: list[str]) -> dict:
+    """``base``'s export with the networks ``names`` taken from ``donor``'s (e.g. an initializer
+    trained further on its own, put back in front of the G_l and G_sc it feeds).
+
+    Each named network must be in the donor and, where the base has it, of the same class; the
+    base's other entries (its other networks, its acquisition settings) stay. The networks
+    downstream of a replaced one were trained on the old one's outputs: fine-tune them after.
+    Returns the new export, ready for ``torch.save``."""
+    if not names:
+        raise ValueError("replace_networks needs the names of the networks to take")
+    out = read_network_file(base, "stage export")
+    got = read_network_file(donor, "stage export")
+    for path, ex in ((base, out), (donor, got)):
+        if not isinstance(ex, dict) or _is_network_record(ex):
+            raise NetworkFileError(f"{path}: not a stage export ({{name: network, ...}})")
+    for name in names:
+        rec = got.get(name)
+        if not _is_network_record(rec):
+            nets = sorted(n for n, r in got.items() if _is_network_record(r))
+            raise NetworkFileError(f"{donor}: has no network {name!r}; its networks are {nets}")
+        old = out.get(name)
+        if old is not None and (not _is_network_record(old) or old["class"] != rec["class"]):
+            raise NetworkFileError(f"{donor}: its {name!r} is a {rec['class']}, {base}'s is "
+                                   f"{old['class'] if _is_network_record(old) else 'not a network'}")
+        network_from_record(rec, f"{donor}: {name!r}")  # it must build
+        out[name] = rec
     return out

@@ -101,7 +101,7 @@ def main() -> None:
             x = prediction_input(i0, acq.settings.resolution, acq.transfer)
             with torch.no_grad():
                 p = predict(acq.initializer, acq.lighting, x, rig, replace(acq.settings, lpdf_from="ground_truth"),
-                            ground_truth=m.resized(working_grid(tuple(i0.shape[-2:]), acq.settings.resolution)))
+                            l0=acq.l0, ground_truth=m.resized(working_grid(tuple(i0.shape[-2:]), acq.settings.resolution)))
             patterns, lpdf = p.patterns, p.lpdf
         shown[name] = (i0[0], lpdf[0, 0], patterns[0])
         seen[name] = {"material": name, **{f"{k} {which}": round(v, 4) for which, mm in (("est.", estimate), ("true", m))

@@ -16,7 +16,7 @@ from pathlib import Path
 import torch
 
 import mitsvbrdf as ms
-from mitsvbrdf.acquisition import DEFAULT_NETWORKS, load_adaptive, maps_to_svbrdf
+from mitsvbrdf.acquisition import DEFAULT_NETWORKS, initial_estimate, load_adaptive, maps_to_svbrdf
 from mitsvbrdf.demo import DEFAULT_MATERIAL
 from mitsvbrdf.importance import importance
 from report import median_seconds, write_report
@@ -65,7 +65,7 @@ def main() -> None:
 def lpdf_stride_tradeoff(pipe, i0: torch.Tensor, rig, strides=(1, 2, 4, 8, 16)) -> list[dict]:
     """Seconds and error of L_pdf per texel stride, and the change of the patterns G_l predicts from it."""
     with torch.no_grad():
-        est = maps_to_svbrdf(pipe.initializer(i0))
+        est = maps_to_svbrdf(initial_estimate(pipe.initializer, i0, pipe.l0, rig))
         ref = importance(est.normal, est.roughness, rig, texel_stride=1)
         ref_pats = pipe.lighting(i0, ref).patterns
         rows = []

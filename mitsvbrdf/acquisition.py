@@ -20,6 +20,7 @@ The learned parts are injected as modules, so the same code serves trained weigh
 
 * ``l0``: (3, h, w) drive values of the first pattern;
 * ``initializer(i0 (B, 3, H, W)) -> (B, 10, H, W)`` encoded maps (normal and roughness are used);
+  one whose ``diffuse_ratio`` attribute is true is also given ``irradiance=`` L_0's L^d (1, 3, H, W);
 * ``lighting(i0, lpdf (B, 1, h, w))`` -> an object with ``patterns`` (B, 4, 3, h, w) in [0, 1];
 * ``reconstructor(images (B, P, 3, H, W), spec (B, P(P-1)/2, 3, H, W) | None) -> (B, 10, H, W)``
   encoded maps (``spec`` is None when the settings' ``use_spec`` is False); a reconstructor whose
@@ -183,15 +184,30 @@ def maps_to_svbrdf(encoded: Tensor) -> SVBRDF:
     return SVBRDF.from_encoded(t)
 
 
+def initial_estimate(initializer: torch.nn.Module, i0: Tensor, l0: Tensor | None, rig: Rig) -> Tensor:
+    """The initializer's encoded maps (B, 10, H, W) from I_0 (B, 3, H, W) on its texel grid. An
+    initializer whose ``diffuse_ratio`` attribute is true is also given L_0's flat-Lambertian
+    irradiance L_0^d (Eq. 4) on that grid, which needs ``l0`` (3, h, w); others ignore ``l0``.
+    Differentiable in the initializer and in ``l0`` (the init stage trains both)."""
+    if not getattr(initializer, "diffuse_ratio", False):
+        return initializer(i0)
+    if l0 is None:
+        raise MitsvbrdfError("this initializer takes I_0 over L_0's irradiance and needs L_0")
+    return initializer(i0, irradiance=diffuse_irradiance(l0[None], rig, tuple(i0.shape[-2:])))
+
+
 def predict(initializer: torch.nn.Module, lighting: torch.nn.Module, i0: Tensor, rig: Rig,
-            settings: AcquisitionSettings, *, ground_truth: SVBRDF | None = None) -> Prediction:
-    """I_0 (B, 3, H, W) -> the initializer's estimate -> L_pdf -> G_l's adaptive patterns.
+            settings: AcquisitionSettings, *, l0: Tensor | None = None,
+            ground_truth: SVBRDF | None = None) -> Prediction:
+    """I_0 (B, 3, H, W) under ``l0`` (3, h, w) -> the initializer's estimate -> L_pdf -> G_l's
+    adaptive patterns.
 
     The estimate and L_pdf carry no gradients; G_l's outputs do (training optimises G_l through
-    them). ``ground_truth`` is needed for ``lpdf_from = "ground_truth"`` only.
+    them). ``l0`` is needed by an initializer with the diffuse-ratio input only
+    (:func:`initial_estimate`), ``ground_truth`` for ``lpdf_from = "ground_truth"`` only.
     """
     with torch.no_grad():
-        initial = maps_to_svbrdf(initializer(i0))
+        initial = maps_to_svbrdf(initial_estimate(initializer, i0, l0, rig))
         if settings.lpdf_from == "uniform":
             lpdf = torch.ones(i0.shape[0], 1, *rig.lcd_cells, device=i0.device, dtype=i0.dtype)
         else:
@@ -323,7 +339,7 @@ class AdaptiveAcquisition(torch.nn.Module):
         """I_0 (B, 3, H, W) -> (adaptive patterns (B, 4, 3, h, w), L_pdf (B, 1, h, w), initial
         SVBRDF (B, H, W)); predicted on the working grid of the transfer mode."""
         p = predict(self.initializer, self.lighting, prediction_input(i0, self.settings.resolution, self.transfer),
-                    self.rig, self.settings)
+                    self.rig, self.settings, l0=self.l0)
         return p.patterns, p.lpdf, p.initial.resized(tuple(i0.shape[-2:]))
 
     @torch.no_grad()

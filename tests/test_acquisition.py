@@ -13,6 +13,7 @@ from mitsvbrdf.errors import MitsvbrdfError
 from mitsvbrdf.importance import importance
 from mitsvbrdf.nets import NetworkFileError, network_record
 from mitsvbrdf.render.quadrature import QuadratureSettings
+from mitsvbrdf.separation import diffuse_irradiance
 from mitsvbrdf.training import STAGES, RenderSettings
 
 from conftest import textured_material
@@ -115,6 +116,33 @@ def test_ground_truth_lpdf_needs_the_ground_truth(rig):
     i0 = torch.rand(1, 3, 8, 8)
     with pytest.raises(MitsvbrdfError, match="needs the ground-truth material"):
         predict(MeanInitializer(), LpdfLighting(), i0, rig, AcquisitionSettings(lpdf_from="ground_truth"))
+
+
+class RatioInitializer(MeanInitializer):
+    """MeanInitializer that takes the diffuse-ratio input and keeps the irradiance it was given."""
+
+    diffuse_ratio = True
+
+    def forward(self, i0, irradiance=None):
+        self.irradiance = irradiance
+        return super().forward(i0)
+
+
+def test_an_initializer_with_the_diffuse_ratio_input_is_given_l0s_irradiance(rig):
+    l0, init = torch.rand(3, 32, 32), RatioInitializer()
+    predict(init, LpdfLighting(), torch.rand(1, 3, 16, 16), rig, AcquisitionSettings(), l0=l0)
+    assert torch.equal(init.irradiance, diffuse_irradiance(l0[None], rig, 16))
+
+
+def test_an_initializer_with_the_diffuse_ratio_input_needs_l0(rig):
+    with pytest.raises(MitsvbrdfError, match="needs L_0"):
+        predict(RatioInitializer(), LpdfLighting(), torch.rand(1, 3, 16, 16), rig, AcquisitionSettings())
+
+
+def test_an_acquisition_gives_its_initializer_its_own_l0(rig):
+    l0, init = torch.rand(3, 32, 32), RatioInitializer()
+    AdaptiveAcquisition(l0, init, LpdfLighting(), ImageReconstructor(), rig).predict_patterns(torch.rand(1, 3, 16, 16))
+    assert torch.equal(init.irradiance, diffuse_irradiance(l0[None], rig, 16))
 
 
 @pytest.mark.parametrize("bad", [{"lpdf_from": "oracle"}, {"lpdf_stride": 0}, {"use_spec": "yes"},

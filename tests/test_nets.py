@@ -119,6 +119,35 @@ def test_widened_predictor_computes_what_the_plain_one_computes():
     assert with_diffuse_ratio(wide) is wide
 
 
+def test_initializer_with_diffuse_ratio_refuses_to_run_without_irradiance():
+    with pytest.raises(ValueError, match="irradiance"):
+        Initializer(width=4, diffuse_ratio=True)(torch.rand(1, 3, 32, 32))
+
+
+def test_initializer_with_diffuse_ratio_reads_the_ratio():
+    net = Initializer(width=4, diffuse_ratio=True)
+    for p in net.parameters():
+        p.data.normal_(0, 0.1)
+    i0 = torch.rand(1, 3, 32, 32)
+    assert not torch.allclose(net(i0, torch.full_like(i0, 0.1)), net(i0, torch.full_like(i0, 0.2)))
+
+
+def test_widened_initializer_computes_what_the_plain_one_computes():
+    plain = Initializer(width=4)
+    for p in plain.parameters():
+        p.data.normal_(0, 0.1)
+    wide = with_diffuse_ratio(plain)
+    i0 = torch.rand(2, 3, 32, 32)
+    assert wide.diffuse_ratio and wide.config["diffuse_ratio"]
+    assert torch.allclose(wide(i0, torch.rand(1, 3, 32, 32)), plain(i0), atol=1e-6)
+
+
+def test_plain_initializer_records_no_diffuse_ratio_so_older_files_load(tmp_path):
+    assert "diffuse_ratio" not in Initializer(width=4).config
+    save_network(tmp_path / "init.pt", Initializer(width=4, diffuse_ratio=True))
+    assert load_network(tmp_path / "init.pt").diffuse_ratio
+
+
 def test_diffuse_ratio_stays_finite_where_pattern_and_image_are_black():
     images = torch.zeros(1, 5, 3, 8, 8, requires_grad=True)
     irradiance = torch.zeros(1, 5, 3, 8, 8, requires_grad=True)

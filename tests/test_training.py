@@ -11,6 +11,8 @@ import torch
 
 import mitsvbrdf as ms
 from mitsvbrdf.data.procedural import generate
+from mitsvbrdf.losses import PLAIN_MAP_WEIGHTS, map_l1
+from mitsvbrdf.nets import network_record
 from mitsvbrdf.relight import FlashLight
 from mitsvbrdf.training import STAGES, ConfigError, RenderSettings, Trainer, TrainingError, load_config, train
 
@@ -256,6 +258,28 @@ def test_init_without_the_lpdf_loss_reports_no_lpdf_term(rig):
     S = STAGES["init"]
     stage = S(S.Model(initializer_width=4), S.Loss(), RenderSettings("mitsuba", 1), rig)
     assert "lpdf" not in stage(generate(1, size=32, seed=5), seed=0)
+
+
+def test_init_with_the_diffuse_ratio_input_gives_the_initializer_l0s_irradiance(rig):
+    from mitsvbrdf.separation import diffuse_irradiance
+    S = STAGES["init"]
+    stage = S(S.Model(initializer_width=4, initializer_diffuse_ratio=True), S.Loss(), RenderSettings("mitsuba", 1), rig)
+    batch = generate(2, size=32, seed=3)
+    out = stage(batch, seed=0)
+    l0, i0 = stage.first_image(batch, 0, torch.Generator().manual_seed(0))
+    pred = stage.nets["initializer"](i0, diffuse_irradiance(l0[None], rig, 32))
+    assert torch.allclose(out["maps"], map_l1(pred, batch.encoded(), PLAIN_MAP_WEIGHTS), rtol=1e-5)
+    out["loss"].backward()  # L_0 learns through the image and through its irradiance
+    assert torch.isfinite(stage.nets["l0"].logits.grad).all()
+
+
+def test_warm_start_widens_a_plain_initializer_when_the_config_asks_for_diffuse_ratio(rig):
+    S = STAGES["init"]
+    plain = S(S.Model(initializer_width=4), S.Loss(), RenderSettings("mitsuba", 1), rig)
+    stage = S(S.Model(initializer_width=4, initializer_diffuse_ratio=True), S.Loss(), RenderSettings("mitsuba", 1), rig)
+    stage.warm_start({n: network_record(net) for n, net in plain.nets.items()})
+    assert stage.nets["initializer"].diffuse_ratio
+    assert torch.isfinite(stage(generate(1, size=32, seed=5), seed=0)["loss"])
 
 
 def test_a_few_steps_on_one_batch_reduce_the_loss(rig):

@@ -12,9 +12,9 @@ from .blocks import LayerNorm2d, NAFBlock, SimpleGate
 from .initializer import Initializer, LearnedPattern, PatternSet
 from .io import NetworkFileError, load_network, network_from_record, network_record, parameter_count, save_network
 from .lighting import LightingOutput, LightingPredictor
-from .nafnet import NAFDecoder, NAFEncoder, NAFNet, diffuse_ratio, normalize_images
+from .nafnet import NAFDecoder, NAFEncoder, NAFNet, diffuse_ratio, normalize_images, with_diffuse_ratio
 from .point import PointPredictor
-from .svbrdf_net import SVBRDFPredictor, with_diffuse_ratio
+from .svbrdf_net import SVBRDFPredictor
 
 __all__ = ["LayerNorm2d", "NAFBlock", "SimpleGate", "NAFNet", "NAFEncoder", "NAFDecoder", "normalize_images", "diffuse_ratio",
            "LightingPredictor", "LightingOutput", "PointPredictor", "SVBRDFPredictor", "LearnedPattern",

@@ -9,7 +9,7 @@ import math
 import torch
 from torch import Tensor, nn
 
-from .nafnet import NAFNet, normalize_images
+from .nafnet import NAFNet, diffuse_ratio, normalize_images
 
 
 class LearnedPattern(nn.Module):
@@ -35,15 +35,36 @@ class LearnedPattern(nn.Module):
 
 
 class Initializer(nn.Module):
-    """Single-image NAFNet: I_0 (B, 3, H, W) -> (B, 10, H, W) encoded maps in [0, 1]."""
+    """Single-image NAFNet: I_0 (B, 3, H, W) -> (B, 10, H, W) encoded maps in [0, 1].
 
-    def __init__(self, width: int = 16, enc_blocks: tuple[int, ...] = (1, 1, 1), middle_blocks: int = 1):
+    Args:
+        width, enc_blocks, middle_blocks: the NAFNet's (default 16, (1, 1, 1), 1).
+        diffuse_ratio: besides I_0, take I_0 over L_0's flat-Lambertian irradiance L_0^d
+            (:func:`~mitsvbrdf.nets.nafnet.diffuse_ratio`, as G_sc's option of the same name), so
+            the shading a normal adds is not buried under the position-dependent ramp of L_0's
+            light; the forward pass then needs ``irradiance`` (B or 1, 3, H, W). Default False
+            (the paper's input, and every export before the option). Not in the paper.
+    """
+
+    #: the convolution that takes the inputs (:func:`~mitsvbrdf.nets.nafnet.with_diffuse_ratio`)
+    RATIO_INTRO = "net.encoder.intro.weight"
+
+    def __init__(self, width: int = 16, enc_blocks: tuple[int, ...] = (1, 1, 1), middle_blocks: int = 1,
+                 diffuse_ratio: bool = False):
         super().__init__()
         self.config = dict(width=width, enc_blocks=tuple(enc_blocks), middle_blocks=middle_blocks)
-        self.net = NAFNet(3, 10, width, enc_blocks, middle_blocks)
+        if diffuse_ratio:  # kept out of config otherwise, so older files load unchanged
+            self.config["diffuse_ratio"] = True
+        self.diffuse_ratio = bool(diffuse_ratio)
+        self.net = NAFNet(6 if diffuse_ratio else 3, 10, width, enc_blocks, middle_blocks)
 
-    def forward(self, i0: Tensor) -> Tensor:
-        return torch.sigmoid(self.net(normalize_images(i0)))
+    def forward(self, i0: Tensor, irradiance: Tensor | None = None) -> Tensor:
+        x = normalize_images(i0)
+        if self.diffuse_ratio:
+            if irradiance is None:
+                raise ValueError("this Initializer was built with diffuse_ratio=True and needs L_0's irradiance L^d")
+            x = torch.cat([x, diffuse_ratio(i0, irradiance.expand_as(i0))], 1)
+        return torch.sigmoid(self.net(x))
 
 
 class PatternSet(nn.Module):

@@ -102,3 +102,20 @@ def diffuse_ratio(images: Tensor, irradiance: Tensor, floor: float = RATIO_FLOOR
     ramp the network would have to learn first. ``floor`` keeps unlit texels finite: where both
     are ~0 the ratio is ~0, and it is bounded by log(1 / floor) ~ 11.5 in magnitude for values <= 1."""
     return torch.log((images.clamp_min(0.0) + floor) / (irradiance.clamp_min(0.0) + floor))
+
+
+def with_diffuse_ratio(net: nn.Module) -> nn.Module:
+    """A copy of ``net`` (an :class:`~mitsvbrdf.nets.svbrdf_net.SVBRDFPredictor` or an
+    :class:`~mitsvbrdf.nets.initializer.Initializer`) that also takes the diffuse-ratio inputs
+    and, at first, ignores them: the new input channels of its intro convolution (the
+    ``RATIO_INTRO`` weight, appended after the images' channels) start at zero, so the copy
+    computes exactly what ``net`` computes and training can continue from it (an export trained
+    without the option). ``net`` itself when it already takes them."""
+    if net.diffuse_ratio:
+        return net
+    wide = type(net)(**{**net.config, "diffuse_ratio": True})
+    state = dict(net.state_dict())
+    w = state[net.RATIO_INTRO]
+    state[net.RATIO_INTRO] = torch.cat([w, torch.zeros_like(w)], 1)
+    wide.load_state_dict(state)
+    return wide.to(w.device)

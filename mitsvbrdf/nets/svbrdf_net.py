@@ -25,6 +25,9 @@ class SVBRDFPredictor(nn.Module):
             the compute-limited recipe (docs/training.md). Default False (the paper's inputs).
     """
 
+    #: the convolution that takes the inputs (:func:`~mitsvbrdf.nets.nafnet.with_diffuse_ratio`)
+    RATIO_INTRO = "images.intro.weight"
+
     def __init__(self, num_images: int = 5, width: int = 32, enc_blocks: tuple[int, ...] = (1, 1, 1),
                  middle_blocks: int = 1, use_spec: bool = True, diffuse_ratio: bool = False):
         super().__init__()
@@ -59,17 +62,3 @@ class SVBRDFPredictor(nn.Module):
             bottom = self.fuse(torch.cat([bottom, sb], 1))
             skips = [a + b for a, b in zip(skips, sskips)]
         return torch.sigmoid(self.decoder(self.middle(bottom), skips))
-
-
-def with_diffuse_ratio(net: SVBRDFPredictor) -> SVBRDFPredictor:
-    """A copy of ``net`` that also takes the diffuse-ratio inputs and, at first, ignores them: the
-    intro convolution's new input channels start at zero, so the copy computes exactly what
-    ``net`` computes and training can continue from it (an export trained without the option)."""
-    if net.diffuse_ratio:
-        return net
-    wide = SVBRDFPredictor(**{**net.config, "diffuse_ratio": True})
-    state = dict(net.state_dict())
-    w = state["images.intro.weight"]
-    state["images.intro.weight"] = torch.cat([w, torch.zeros_like(w)], 1)
-    wide.load_state_dict(state)
-    return wide.to(w.device)

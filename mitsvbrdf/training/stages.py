@@ -27,7 +27,7 @@ from typing import Callable, ClassVar
 import torch
 from torch import Tensor, nn
 
-from ..acquisition import AcquisitionSettings, maps_to_svbrdf, predict, reconstruct_maps
+from ..acquisition import AcquisitionSettings, initial_estimate, maps_to_svbrdf, predict, reconstruct_maps
 from ..errors import MitsvbrdfError
 from ..importance import importance
 from ..losses import PLAIN_MAP_WEIGHTS, importance_consistency_loss, inverse_importance_loss, map_l1
@@ -100,6 +100,8 @@ class TrainingStage(nn.Module):
                                  f"stage {self.name!r} needs a {type(self.nets[name]).__name__}")
         if isinstance(net, SVBRDFPredictor) and getattr(self.model_cfg, "diffuse_ratio", False):
             net = with_diffuse_ratio(net)  # trained without the option: the new inputs start at zero
+        if isinstance(net, Initializer) and not frozen and getattr(self.model_cfg, "initializer_diffuse_ratio", False):
+            net = with_diffuse_ratio(net)
         net.requires_grad_(not frozen)
         self.nets[name] = net
 
@@ -161,6 +163,10 @@ class InitModel(LpdfQuadratureModel):
     # initializer trains; continuing the initializer of shipped networks this way leaves I_0, and
     # so every later stage's input, as those networks were trained with
     train_l0: bool = True
+    # the initializer also sees I_0 over L_0's flat-Lambertian irradiance (Initializer's
+    # diffuse_ratio; not in the paper); a warm-started initializer without it is widened, its new
+    # inputs starting at zero
+    initializer_diffuse_ratio: bool = False
 
 
 @dataclass
@@ -180,7 +186,8 @@ class InitStage(TrainingStage):
     def __init__(self, model: InitModel, loss: InitLoss, render_settings: RenderSettings, rig: Rig):
         super().__init__(model, loss, render_settings, rig)
         self.nets["l0"] = LearnedPattern(rig.lcd_cells).requires_grad_(model.train_l0)
-        self.nets["initializer"] = Initializer(model.initializer_width, tuple(model.initializer_blocks))
+        self.nets["initializer"] = Initializer(model.initializer_width, tuple(model.initializer_blocks),
+                                               diffuse_ratio=model.initializer_diffuse_ratio)
 
     def warm_start(self, records: dict[str, dict]) -> None:
         super().warm_start(records)
@@ -188,8 +195,8 @@ class InitStage(TrainingStage):
 
     def forward(self, batch: SVBRDF, seed: int) -> dict[str, Tensor]:
         g = _generator(seed, batch.device)
-        _, i0 = self.first_image(batch, seed, g)
-        pred = self.nets["initializer"](i0)
+        l0, i0 = self.first_image(batch, seed, g)
+        pred = initial_estimate(self.nets["initializer"], i0, l0, self.rig)
         l_maps = map_l1(pred, batch.encoded(), self.loss_cfg.map_weights)
         out = {"loss": self.loss_cfg.maps * l_maps, "maps": l_maps}
         if self.loss_cfg.lpdf:
@@ -257,7 +264,7 @@ class AdaptiveStage(TrainingStage):
         with torch.no_grad():
             l0, i0 = self.first_image(batch, seed, g)
         pred = predict(self.nets["initializer"], self.nets["lighting"], i0, self.rig, self.acquisition_settings(),
-                       ground_truth=batch)
+                       l0=l0, ground_truth=batch)
         imgs = self.capture(batch, pred.patterns, seed + 1, g)
         patterns = prepend_pattern(l0.detach(), pred.patterns)
         images = torch.cat([i0[:, None], imgs], 1)

@@ -52,6 +52,11 @@ class RenderSettings:
     ltc_mode: str = "exact"
 
 
+#: the model option that asks a network of each class for the diffuse-ratio inputs; a pretrained
+#: network without them is widened (:func:`mitsvbrdf.nets.with_diffuse_ratio`)
+RATIO_OPTIONS = {SVBRDFPredictor: "diffuse_ratio", Initializer: "initializer_diffuse_ratio"}
+
+
 class TrainingStage(nn.Module):
     """Base class: rendering, pretrained networks, export. Subclasses set ``name``, ``Model``,
     ``Loss``, build their networks in ``__init__`` and implement ``forward``."""
@@ -98,10 +103,9 @@ class TrainingStage(nn.Module):
         if name in self.nets and type(net) is not type(self.nets[name]):
             raise MitsvbrdfError(f"pretrained network {name!r} is a {type(net).__name__}, "
                                  f"stage {self.name!r} needs a {type(self.nets[name]).__name__}")
-        if isinstance(net, SVBRDFPredictor) and getattr(self.model_cfg, "diffuse_ratio", False):
+        option = RATIO_OPTIONS.get(type(net))
+        if option and getattr(self.model_cfg, option, False):
             net = with_diffuse_ratio(net)  # trained without the option: the new inputs start at zero
-        if isinstance(net, Initializer) and not frozen and getattr(self.model_cfg, "initializer_diffuse_ratio", False):
-            net = with_diffuse_ratio(net)
         net.requires_grad_(not frozen)
         self.nets[name] = net
 

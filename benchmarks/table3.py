@@ -3,6 +3,7 @@ with the same G_sc budget, and the "fixed L_pdf" (Diff. Init.) ablation, on held
 materials and on the sample materials.
 
     .venv/bin/python benchmarks/table3.py                  # CPU scale (train/*-small.toml, 32 px)
+    .venv/bin/python benchmarks/table3.py --scale medium --jobs 2   # the CPU configs at the shipped weights' scale
     python3 benchmarks/table3.py --scale full              # full scale on a GPU (train/*.toml, 256 px)
     .venv/bin/python benchmarks/table3.py --eval-only      # re-score finished runs
     python3 benchmarks/table3.py --scale full --steps-scale 0.05 --jobs 6   # a short GPU study
@@ -42,9 +43,25 @@ RUNS = ["init", "stage1", "stage2-nospec", "finetune-nospec",
         "fixed-flash", "stage1-diffinit", "stage2-diffinit", "finetune-diffinit", "stage2", "finetune"]
 FIGURES = 4  # per material set: each figure (ten methods) is about 0.8 MB
 BASELINES = ["monograd", "colorgrad", "picked", "pca", "optimized", "lpl", "flash"]
-#: per scale: config suffix, evaluation resolution, capture spp, procedural materials
-SCALES = {"small": dict(suffix="-small", size=32, spp=16, n=16),
-          "full": dict(suffix="", size=256, spp=64, n=64)}
+#: What the shipped CPU weights train with (train/chains/continue-shipped-finetune-small.toml and
+#: the chains before it, mitsvbrdf/weights/README.md), as ``--set`` overrides by the stage of the run
+#: ("*": every run): 64 px materials with the relief and dark metals of the shipped data, the normal
+#: map weighted 5x, 4-spp captures; the L_pdf quadrature at orders (1, 16) wherever L_pdf is
+#: computed (not in the fixed-pattern baselines); a width-16 initializer; and for every stage that
+#: trains a G_sc (stage 2, fine-tuning, the baselines) the shipped G_sc's width and diffuse-ratio
+#: inputs, so every method's G_sc is the same network but for its encoders.
+_LPDF = ["model.lpdf_cell_order=1", "model.lpdf_lobe_grid=16"]
+_G_SC = ["model.svbrdf_width=16", "model.diffuse_ratio=true"]
+SHIPPED_RECIPE = {"*": ["data.size=64", "data.bump=[1.0, 8.0]", "data.dark_metals=0.5",
+                        "loss.map_weights=[5.0, 1.0, 1.0, 1.0]", "render.spp=4"],
+                  "init": [*_LPDF, "model.initializer_width=16"], "stage1": _LPDF,
+                  "stage2": [*_LPDF, *_G_SC], "finetune": [*_LPDF, *_G_SC], "fixed": _G_SC}
+#: per scale: config suffix, evaluation resolution, capture spp, procedural materials, overrides by
+#: stage (as :data:`SHIPPED_RECIPE`). "medium" is the CPU configs, and their equal G_sc budget in
+#: steps, at the shipped weights' scale.
+SCALES = {"small": dict(suffix="-small", size=32, spp=16, n=16, overrides={}),
+          "medium": dict(suffix="-small", size=64, spp=32, n=16, overrides=SHIPPED_RECIPE),
+          "full": dict(suffix="", size=256, spp=64, n=64, overrides={})}
 
 
 @dataclass
@@ -58,18 +75,22 @@ class Run:
     overrides: list[str] = field(default_factory=list)
 
 
-def plan(suffix: str, steps_scale: float) -> dict[str, Run]:
-    """The runs of :data:`RUNS` at a scale. ``steps_scale`` multiplies every run's steps (budgets
-    stay equal: every G_sc budget scales alike) and tags the output folders ``-x<scale>``."""
+def plan(scale: str, steps_scale: float) -> dict[str, Run]:
+    """The runs of :data:`RUNS` at a scale of :data:`SCALES`. ``steps_scale`` multiplies every run's
+    steps (budgets stay equal: every G_sc budget scales alike) and tags the output folders
+    ``-x<scale>``; a scale with overrides of its own tags them ``-<scale>`` too."""
     from mitsvbrdf.training import load_config
 
-    tag = "" if steps_scale == 1 else f"-x{steps_scale:g}"
+    sc = SCALES[scale]
+    suffix = sc["suffix"]
+    tag = (f"-{scale}" if sc["overrides"] else "") + ("" if steps_scale == 1 else f"-x{steps_scale:g}")
     runs: dict[str, Run] = {}
     for name in RUNS:
         path = ROOT / "train" / f"{name}{suffix}.toml"
         cfg = load_config(path)
         parent = Path(cfg.pretrained.networks).parent.name + tag if cfg.pretrained.networks else None
         run = Run(name, path, ROOT / "runs" / f"{name}{suffix}{tag}", parent)
+        run.overrides += [*sc["overrides"].get("*", []), *sc["overrides"].get(cfg.stage, [])]
         run.overrides.append(f'out="{run.out}"')
         if parent:
             run.overrides.append(f'pretrained.networks="{ROOT / "runs" / parent / "networks.pt"}"')
@@ -176,7 +197,7 @@ def main() -> None:
     python = sys.executable
     if args.steps_scale <= 0 or args.jobs < 1:
         ap.error("--steps-scale must be positive and --jobs at least 1")
-    runs = plan(sc["suffix"], args.steps_scale)
+    runs = plan(args.scale, args.steps_scale)
     if not args.eval_only:
         train_all(runs, python, args.jobs)
     if args.train_only:
@@ -194,6 +215,10 @@ def main() -> None:
             f"{', every run at ' + format(args.steps_scale, 'g') + ' x its steps' if steps else ''}; every G_sc "
             f"trained for the same number of steps). Map RMSE on encoded maps; captures simulated with Mitsuba "
             f"at {sc['spp']} spp, materials at {sc['size']} px.\n"]
+    if sc["overrides"]:
+        text.append("Every run with these `--set` overrides by its stage: " + "; ".join(
+            f"{'every run' if stage == '*' else stage}: {', '.join(f'`{o}`' for o in sets_)}"
+            for stage, sets_ in sc["overrides"].items()) + ".\n")
     for label, data, n in sets:
         rows = evaluate(runs, data, out / label, sc["size"], sc["spp"], n, python)
         table = (out / label / "summary.md").read_text().strip()
@@ -201,7 +226,7 @@ def main() -> None:
         what = f"{count} held-out procedural materials (seeds from 1 000 000)" if label == "procedural" else \
             f"the {count} sample materials ({SAMPLES.name}, MITSVBRDF_SAMPLES)"
         text += [f"## {label}: {what}\n", table + "\n", *verdict(rows), "",
-                 f"Figures: `table3-{args.scale}/{label}/index.html`.\n"]
+                 f"Figures: `table3-{args.scale}{tag}/{label}/index.html`.\n"]
     (Path(args.out) / f"table3-{args.scale}{tag}.md").write_text("\n".join(text))
     print("\n".join(text))
 

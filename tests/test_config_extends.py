@@ -151,3 +151,47 @@ def test_changing_the_budget_in_the_bases_changes_every_baseline_and_adaptive_ch
     budgets = {f"fixed-{b}": cfg(f"fixed-{b}").train.steps for b in BASELINES}
     budgets |= {f"adaptive{a}": cfg(f"stage2{a}").train.steps + cfg(f"finetune{a}").train.steps for a in ADAPTIVE}
     assert budgets == dict.fromkeys(budgets, base + 1000)
+
+
+# ---- benchmarks/table3.py's "medium" scale: the CPU configs at the shipped weights' recipe ------
+
+
+def table3_plan(scale: str):
+    """benchmarks/table3.py's runs at ``scale``: the configs as each run loads them, by run name."""
+    import importlib.util
+    import sys
+
+    sys.path.insert(0, str(ROOT / "benchmarks"))  # table3 imports its sibling report.py
+    try:
+        spec = importlib.util.spec_from_file_location("table3", ROOT / "benchmarks" / "table3.py")
+        table3 = importlib.util.module_from_spec(spec)
+        sys.modules["table3"] = table3  # its dataclass looks its module up there
+        spec.loader.exec_module(table3)
+    finally:
+        sys.path.remove(str(ROOT / "benchmarks"))
+        sys.modules.pop("table3", None)
+    return table3, {r.name: load_config(r.config, r.overrides) for r in table3.plan(scale, 1.0).values()}
+
+
+def test_table3_medium_trains_every_run_on_the_shipped_recipes_data_and_loss():
+    table3, cfgs = table3_plan("medium")
+    assert {c.data.size for c in cfgs.values()} == {64}
+    assert {tuple(c.loss.map_weights) for c in cfgs.values()} == {(5.0, 1.0, 1.0, 1.0)}
+    assert {c.render.spp for c in cfgs.values()} == {4}
+    assert cfgs["init"].model.initializer_width == 16
+
+
+def test_table3_medium_gives_every_method_the_same_g_sc_and_budget():
+    table3, cfgs = table3_plan("medium")
+    g_sc = {n: c for n, c in cfgs.items() if c.stage in ("stage2", "finetune", "fixed")}
+    assert {(c.model.svbrdf_width, c.model.diffuse_ratio) for c in g_sc.values()} == {(16, True)}
+    budgets = {f"fixed-{b}": cfgs[f"fixed-{b}"].train.steps for b in BASELINES}
+    budgets |= {f"adaptive{a}": cfgs[f"stage2{a}"].train.steps + cfgs[f"finetune{a}"].train.steps for a in ADAPTIVE}
+    assert len(set(budgets.values())) == 1, budgets
+
+
+def test_table3_medium_runs_start_from_medium_runs_only():
+    table3, _ = table3_plan("medium")
+    runs = table3.plan("medium", 1.0)
+    assert all(k.endswith("-medium") for k in runs)
+    assert all(r.parent in runs for r in runs.values() if r.parent)

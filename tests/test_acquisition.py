@@ -297,6 +297,20 @@ def test_a_fixed_pattern_baseline_reconstructs_across_grids_too(rig):
     assert rec.grids == [(8, 8)] * (1 + 4) and out.svbrdf.resolution == (16, 16)
 
 
+def test_g_sc_runs_on_one_grid_share_one_irradiance_computation(rig, monkeypatch):
+    """The texel-phase runs (resolution.grid_maps) all run on the coarse grid: L^d, which depends
+    on the patterns and the grid alone, is computed once per grid, not once per run."""
+    import mitsvbrdf.acquisition as acquisition
+
+    grids = []
+    monkeypatch.setattr(acquisition, "diffuse_irradiance",
+                        lambda p, rig_, grid: grids.append(tuple(grid)) or diffuse_irradiance(p, rig_, grid))
+    acq, _, rec = _trained_at(rig, 8, "fused")
+    acq.simulate(textured_material(16), method="reference")
+    assert len(rec.grids) == 6  # area average + 4 phases on (8, 8), the capture's own run on (16, 16)
+    assert sorted(grids) == [(8, 8), (16, 16)]
+
+
 def test_an_unknown_transfer_mode_is_refused(rig):
     with pytest.raises(MitsvbrdfError, match="transfer must be one of"):
         _trained_at(rig, 8, "tiles")

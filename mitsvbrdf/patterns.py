@@ -140,6 +140,21 @@ def prepend_pattern(first: Tensor, rest: Tensor) -> Tensor:
     return torch.cat([first.to(rest)[None, None].expand(rest.shape[0], 1, *first.shape), rest], 1)
 
 
+def load_pattern(spec: str, h: int = 32, w: int = 32) -> Tensor:
+    """One (3, h, w) pattern: ``NAME`` is the first of :func:`load_patterns`'s group (a family name
+    or a file), ``NAME[k]`` its k-th (from 0), e.g. ``"colorgrad[1]"``, the (u, v, z) gradient."""
+    s, index = str(spec), 0
+    if s.endswith("]") and "[" in s:
+        s, _, k = s[:-1].rpartition("[")
+        if not k.isdigit():
+            raise PatternError(f"{spec!r}: the index in brackets must be a whole number >= 0, got {k!r}")
+        index = int(k)
+    group = load_patterns(s, h, w)
+    if index >= group.shape[0]:
+        raise PatternError(f"{spec!r}: {s!r} holds {group.shape[0]} patterns (indices 0-{group.shape[0] - 1})")
+    return group[index]
+
+
 def load_patterns(name_or_path: str | Path, h: int = 32, w: int = 32) -> Tensor:
     """A family name, or a file: ``.npy``/``.pt`` holding (P, 3, h, w) (or (3, h, w)) drive values,
     or an image (PNG/EXR) of P tiles of h x w cells side by side (drive values as stored)."""

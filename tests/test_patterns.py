@@ -55,6 +55,18 @@ def test_patterns_load_from_npy_and_png_strip(tmp_path):
     torch.testing.assert_close(pt.load_patterns(tmp_path / "p.png", 8, 8), p, atol=1e-4, rtol=0)
 
 
+def test_one_pattern_is_named_by_its_group_and_index():
+    assert torch.equal(pt.load_pattern("colorgrad[1]"), pt.pattern_family("colorgrad")[1])
+    assert torch.equal(pt.load_pattern("monograd"), pt.pattern_family("monograd")[0])
+
+
+@pytest.mark.parametrize("spec, match", [("colorgrad[5]", "holds 5 patterns"), ("colorgrad[x]", "whole number"),
+                                         ("colorgrad[-1]", "whole number"), ("nothing[0]", "neither a pattern family")])
+def test_a_bad_pattern_name_or_index_is_a_clear_error(spec, match):
+    with pytest.raises(PatternError, match=match):
+        pt.load_pattern(spec)
+
+
 def test_unknown_family_and_wrong_file_shape_are_clear_errors(tmp_path):
     with pytest.raises(PatternError, match="neither a pattern family"):
         pt.load_patterns("sunset")

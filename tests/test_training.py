@@ -1,5 +1,6 @@
 """Training: configs, stages (gradients through Mitsuba), the driver (resume, signals, DDP, outputs)."""
 
+import math
 import os
 import signal
 import subprocess
@@ -252,6 +253,49 @@ def test_init_lpdf_loss_trains_the_initializer(rig):
     grads = [p.grad for p in stage.nets["initializer"].parameters()]
     assert all(g is not None and torch.isfinite(g).all() for g in grads)
     assert sum(float(g.abs().sum()) for g in grads) > 0
+
+
+def test_init_l0_gets_its_own_learning_rate(rig):
+    S = STAGES["init"]
+    stage = S(S.Model(initializer_width=4, pattern_lr=0.05), S.Loss(), RenderSettings(), rig)
+    groups = stage.param_groups(1e-3)
+    assert [g["lr"] for g in groups] == [1e-3, 0.05]
+    assert groups[1]["params"] == [stage.nets["l0"].logits]
+    assert sum(p.numel() for g in groups for p in g["params"]) == sum(p.numel() for p in stage.parameters())
+
+
+def test_init_l0_rate_is_moot_while_l0_is_frozen(rig):
+    S = STAGES["init"]
+    stage = S(S.Model(initializer_width=4, pattern_lr=0.05, train_l0=False), S.Loss(), RenderSettings(), rig)
+    assert [g["lr"] for g in stage.param_groups(1e-3)] == [1e-3]
+
+
+def test_init_l0_moves_by_its_own_rate(tmp_path):
+    """Adam's first step moves every parameter with a gradient by about its group's rate: L_0's
+    logits by pattern_lr, not by train.lr."""
+    train(tiny("init", tmp_path / "run", steps=1, initializer_width=4, pattern_lr=0.2), progress=False)
+    logits = torch.load(tmp_path / "run" / "networks.pt", weights_only=True)["l0"]["state"]["logits"]
+    moved = (logits - math.log(0.9 / 0.1)).abs().max()
+    assert 0.1 < float(moved) <= 0.2 + 1e-4
+
+
+def test_init_l0_starts_at_the_named_pattern(rig):
+    S = STAGES["init"]
+    stage = S(S.Model(initializer_width=4, l0_start="colorgrad[1]"), S.Loss(), RenderSettings(), rig)
+    start = ms.patterns.pattern_family("colorgrad", *rig.lcd_cells)[1].clamp(1e-3, 1 - 1e-3)
+    assert torch.allclose(stage.nets["l0"]()[0], start, atol=1e-6)
+
+
+def test_init_l0_starts_uniform_by_default(rig):
+    S = STAGES["init"]
+    stage = S(S.Model(initializer_width=4), S.Loss(), RenderSettings(), rig)
+    assert torch.allclose(stage.nets["l0"](), torch.full((1, 3, *rig.lcd_cells), 0.9))
+
+
+def test_a_negative_init_l0_rate_is_refused(rig):
+    S = STAGES["init"]
+    with pytest.raises(ms.MitsvbrdfError, match="pattern_lr"):
+        S(S.Model(initializer_width=4, pattern_lr=-1.0), S.Loss(), RenderSettings(), rig)
 
 
 def test_init_without_the_lpdf_loss_reports_no_lpdf_term(rig):

@@ -33,7 +33,7 @@ from ..importance import importance
 from ..losses import PLAIN_MAP_WEIGHTS, importance_consistency_loss, inverse_importance_loss, map_l1
 from ..nets import (Initializer, LearnedPattern, LightingPredictor, PatternSet, PointPredictor, SVBRDFPredictor,
                     network_from_record, with_diffuse_ratio)
-from ..patterns import load_patterns, prepend_pattern
+from ..patterns import load_pattern, load_patterns, prepend_pattern
 from ..relight import FlashLight
 from ..render import render
 from ..rig import Rig
@@ -167,6 +167,15 @@ class InitModel(LpdfQuadratureModel):
     # initializer trains; continuing the initializer of shipped networks this way leaves I_0, and
     # so every later stage's input, as those networks were trained with
     train_l0: bool = True
+    # L_0's own learning rate (0: train.lr). Behind a sigmoid at its uniform start (drive 0.9, slope
+    # 0.09) and with one noisy render gradient a step, at train.lr it barely moves: the shipped L_0
+    # is 0.89 +- 0.01 after its init stage, nearly uniform light, under which a normal's shading is
+    # a few per cent of I_0 (docs/training.md, "L_0's learning rate")
+    pattern_lr: float = 0.0
+    # where L_0 starts (and stays, with train_l0 false): "uniform" (drive 0.9) or "grey" (0.5), or one
+    # pattern of a family or file, "NAME[k]" (patterns.load_pattern; e.g. "colorgrad[1]", red rising
+    # along u and green along v, so a slope's direction shades I_0). A warm start's L_0 replaces it.
+    l0_start: str = "uniform"
     # the initializer also sees I_0 over L_0's flat-Lambertian irradiance (Initializer's
     # diffuse_ratio; not in the paper); a warm-started initializer without it is widened, its new
     # inputs starting at zero
@@ -189,13 +198,23 @@ class InitStage(TrainingStage):
 
     def __init__(self, model: InitModel, loss: InitLoss, render_settings: RenderSettings, rig: Rig):
         super().__init__(model, loss, render_settings, rig)
-        self.nets["l0"] = LearnedPattern(rig.lcd_cells).requires_grad_(model.train_l0)
+        if not model.pattern_lr >= 0:
+            raise MitsvbrdfError(f"model.pattern_lr must be >= 0, got {model.pattern_lr}")
+        start = model.l0_start if model.l0_start in ("uniform", "grey") else load_pattern(model.l0_start, *rig.lcd_cells)
+        self.nets["l0"] = LearnedPattern(rig.lcd_cells, init=start).requires_grad_(model.train_l0)
         self.nets["initializer"] = Initializer(model.initializer_width, tuple(model.initializer_blocks),
                                                diffuse_ratio=model.initializer_diffuse_ratio)
 
     def warm_start(self, records: dict[str, dict]) -> None:
         super().warm_start(records)
         self.nets["l0"].requires_grad_(self.model_cfg.train_l0)
+
+    def param_groups(self, lr: float) -> list[dict]:
+        l0 = [p for p in self.nets["l0"].parameters() if p.requires_grad]
+        if not l0 or not self.model_cfg.pattern_lr:
+            return super().param_groups(lr)
+        rest = [p for p in self.parameters() if p.requires_grad and all(p is not q for q in l0)]
+        return [{"params": rest, "lr": lr}, {"params": l0, "lr": self.model_cfg.pattern_lr}]
 
     def forward(self, batch: SVBRDF, seed: int) -> dict[str, Tensor]:
         g = _generator(seed, batch.device)

@@ -170,7 +170,7 @@ class InitModel(LpdfQuadratureModel):
     # L_0's own learning rate (0: train.lr). Behind a sigmoid at its uniform start (drive 0.9, slope
     # 0.09) and with one noisy render gradient a step, at train.lr it barely moves: the shipped L_0
     # is 0.89 +- 0.01 after its init stage, nearly uniform light, under which a normal's shading is
-    # a few per cent of I_0 (docs/training.md, "L_0's learning rate")
+    # a few per cent of I_0 (docs/training.md, "L_0's rate and start")
     pattern_lr: float = 0.0
     # where L_0 starts (and stays, with train_l0 false): "uniform" (drive 0.9) or "grey" (0.5), or one
     # pattern of a family or file, "NAME[k]" (patterns.load_pattern; e.g. "colorgrad[1]", red rising

@@ -49,7 +49,8 @@ BASELINES = ["monograd", "colorgrad", "picked", "pca", "optimized", "lpl", "flas
 #: map weighted 5x, 4-spp captures; the L_pdf quadrature at orders (1, 16) wherever L_pdf is
 #: computed (not in the fixed-pattern baselines); a width-16 initializer; and for every stage that
 #: trains a G_sc (stage 2, fine-tuning, the baselines) the shipped G_sc's width and diffuse-ratio
-#: inputs, so every method's G_sc is the same network but for its encoders.
+#: inputs, so every method's G_sc is the same network but for its encoders (the flash baseline
+#: excepted from the ratio: with the LCD off there is no irradiance L^d to divide by).
 _LPDF = ["model.lpdf_cell_order=1", "model.lpdf_lobe_grid=16"]
 _G_SC = ["model.svbrdf_width=16", "model.diffuse_ratio=true"]
 SHIPPED_RECIPE = {"*": ["data.size=64", "data.bump=[1.0, 8.0]", "data.dark_metals=0.5",
@@ -91,6 +92,8 @@ def plan(scale: str, steps_scale: float) -> dict[str, Run]:
         parent = Path(cfg.pretrained.networks).parent.name + tag if cfg.pretrained.networks else None
         run = Run(name, path, ROOT / "runs" / f"{name}{suffix}{tag}", parent)
         run.overrides += [*sc["overrides"].get("*", []), *sc["overrides"].get(cfg.stage, [])]
+        if getattr(cfg.model, "light", "lcd") == "flash":  # the LCD is off: no L^d to divide by
+            run.overrides = [o for o in run.overrides if not o.startswith("model.diffuse_ratio")]
         run.overrides.append(f'out="{run.out}"')
         if parent:
             run.overrides.append(f'pretrained.networks="{ROOT / "runs" / parent / "networks.pt"}"')

@@ -49,14 +49,17 @@ BASELINES = ["monograd", "colorgrad", "picked", "pca", "optimized", "lpl", "flas
 #: map weighted 5x, 4-spp captures; the L_pdf quadrature at orders (1, 16) wherever L_pdf is
 #: computed (not in the fixed-pattern baselines); a width-16 initializer; and for every stage that
 #: trains a G_sc (stage 2, fine-tuning, the baselines) the shipped G_sc's width and diffuse-ratio
-#: inputs, so every method's G_sc is the same network but for its encoders (the flash baseline
-#: excepted from the ratio: with the LCD off there is no irradiance L^d to divide by).
+#: inputs, so every method's G_sc is the same network but for its encoders. A key naming a run
+#: (``fixed-flash``) replaces its stage's entry: the flash baseline gets the width without the
+#: ratio, since with the LCD off there is no irradiance L^d to divide by.
 _LPDF = ["model.lpdf_cell_order=1", "model.lpdf_lobe_grid=16"]
-_G_SC = ["model.svbrdf_width=16", "model.diffuse_ratio=true"]
+_G_SC_WIDTH = ["model.svbrdf_width=16"]
+_G_SC = [*_G_SC_WIDTH, "model.diffuse_ratio=true"]
 SHIPPED_RECIPE = {"*": ["data.size=64", "data.bump=[1.0, 8.0]", "data.dark_metals=0.5",
                         "loss.map_weights=[5.0, 1.0, 1.0, 1.0]", "render.spp=4"],
                   "init": [*_LPDF, "model.initializer_width=16"], "stage1": _LPDF,
-                  "stage2": [*_LPDF, *_G_SC], "finetune": [*_LPDF, *_G_SC], "fixed": _G_SC}
+                  "stage2": [*_LPDF, *_G_SC], "finetune": [*_LPDF, *_G_SC], "fixed": _G_SC,
+                  "fixed-flash": _G_SC_WIDTH}
 #: per scale: config suffix, evaluation resolution, capture spp, procedural materials, overrides by
 #: stage (as :data:`SHIPPED_RECIPE`). "medium" is the CPU configs, and their equal G_sc budget in
 #: steps, at the shipped weights' scale.
@@ -91,9 +94,8 @@ def plan(scale: str, steps_scale: float) -> dict[str, Run]:
         cfg = load_config(path)
         parent = Path(cfg.pretrained.networks).parent.name + tag if cfg.pretrained.networks else None
         run = Run(name, path, ROOT / "runs" / f"{name}{suffix}{tag}", parent)
-        run.overrides += [*sc["overrides"].get("*", []), *sc["overrides"].get(cfg.stage, [])]
-        if getattr(cfg.model, "light", "lcd") == "flash":  # the LCD is off: no L^d to divide by
-            run.overrides = [o for o in run.overrides if not o.startswith("model.diffuse_ratio")]
+        own = sc["overrides"].get(name, sc["overrides"].get(cfg.stage, []))
+        run.overrides += [*sc["overrides"].get("*", []), *own]
         run.overrides.append(f'out="{run.out}"')
         if parent:
             run.overrides.append(f'pretrained.networks="{ROOT / "runs" / parent / "networks.pt"}"')
@@ -219,7 +221,7 @@ def main() -> None:
             f"trained for the same number of steps). Map RMSE on encoded maps; captures simulated with Mitsuba "
             f"at {sc['spp']} spp, materials at {sc['size']} px.\n"]
     if sc["overrides"]:
-        text.append("Every run with these `--set` overrides by its stage: " + "; ".join(
+        text.append("Every run with these `--set` overrides by its stage (or its own name): " + "; ".join(
             f"{'every run' if stage == '*' else stage}: {', '.join(f'`{o}`' for o in sets_)}"
             for stage, sets_ in sc["overrides"].items()) + ".\n")
     for label, data, n in sets:

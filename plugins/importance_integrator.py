@@ -18,8 +18,10 @@ Parameters:
                      "diffuse" (the diffuse term under block-averaged patterns), "ltc" (the
                      diffuse term and the fitted LTC specular lobe under one radiance per texel)
                      or "ltc-cells" (both lobes, the specular where it is wide, under every LCD
-                     cell's own radiance: for sparse patterns); Monte Carlo estimates only the
-                     residual, so every choice is unbiased.
+                     cell's own radiance: for sparse patterns), or "ltc-grid" (the per-cell terms
+                     of "ltc-cells" alone, their lobe grid evaluated in this integrator's kernel
+                     instead of stored per texel: cheaper, and narrower lobes are left to Monte
+                     Carlo); Monte Carlo estimates only the residual, so every choice is unbiased.
     cv_blocks        (integer, default 8) the diffuse control variate sees the patterns averaged
                      over cv_blocks x cv_blocks blocks of cells (it must divide the LCD's cell
                      counts). More blocks: a closer control variate, more closed-form work per
@@ -35,11 +37,14 @@ Parameters:
     ltc_min_roughness (float, default 0.1) below this roughness the specular lobe is left to
                      Monte Carlo alone: a near-mirror LTC lobe that misses the true one by a
                      fraction of its width would make the residual spikier, not smoother.
-    ltc_grid         (integer, default 16) "ltc-cells": the lobe is interpolated bilinearly from
-                     its values at the (ltc_grid + 1)^2 vertices of a grid over the LCD (it must
-                     divide the LCD's cell counts); (ltc_grid + 1)^2 floats per texel.
+    ltc_grid         (integer, default 16) "ltc-cells", "ltc-grid": the lobe is interpolated
+                     bilinearly from its values at the (ltc_grid + 1)^2 vertices of a grid over the
+                     LCD (it must divide the LCD's cell counts); "ltc-cells" stores (ltc_grid + 1)^2
+                     floats per texel, "ltc-grid" unrolls that many lobe evaluations into its
+                     closed-form kernel (its tracing time grows with them: meant for ltc_grid <= 8).
     ltc_cells_min_roughness (float, default 0.2) "ltc-cells": below this roughness the lobe is too
-                     narrow for the grid, and the one-radiance term of "ltc" stays.
+                     narrow for the grid, and the one-radiance term of "ltc" stays; "ltc-grid":
+                     below it the specular lobe is left to Monte Carlo.
     ltc_window       (integer, default 8; 0: off) "ltc-cells": lobes narrower than that (down to
                      ltc_window_min_roughness) are known exactly under every cell of a
                      ltc_window x ltc_window window of cells around their peak; the one-radiance
@@ -77,10 +82,10 @@ import drjit as dr
 import mitsuba as mi
 
 from . import plugin_class
-from .lcd_integrals import ViewFrame, ltc_density
+from .lcd_integrals import ViewFrame, ltc_density, ltc_lookup
 
 SAMPLERS = ("independent", "stratified")
-CONTROL_VARIATES = ("none", "diffuse", "ltc", "ltc-cells")
+CONTROL_VARIATES = ("none", "diffuse", "ltc", "ltc-cells", "ltc-grid")
 LIGHT_SAMPLINGS = ("uniform", "patterns")
 
 
@@ -178,8 +183,9 @@ class _ControlVariate:
                  lobe_grid=None, grid: int = 0, window: int = 0):
         self.lcd, self.K, self.count = lcd, K, count
         self.block_rad, self.b = block_rad, b
-        self.window = window if lobe_grid is not None else 0
-        eager = 7 + 3 * count + (0 if lobe_grid is None else 6) + (5 if self.window else 0)
+        self.cells = lobe_grid is not None
+        self.window = window if self.cells else 0
+        eager = 7 + 3 * count + (6 if self.cells else 0) + (5 if self.window else 0)
         width = eager + self.window * self.window
         base = (b * hw + texel) * width
         c = [dr.gather(mi.Float, coeffs, base + j) for j in range(eager)]
@@ -191,8 +197,9 @@ class _ControlVariate:
         self.kdd = mi.Color3f(c[4], c[5], c[6])
         self.spec = [mi.Color3f(c[7 + 3 * p], c[8 + 3 * p], c[9 + 3 * p]) for p in range(count)]
         self.lobe_grid, self.grid = lobe_grid, grid
-        self.lobe_base = (b * hw + texel) * (2 * (grid + 1) * (grid + 1))
-        if lobe_grid is not None:
+        # the lobe grid's layout (torch's (B, H W, 2, V)) as first entry and step between vertices
+        self.lobe_base, self.lobe_step = (b * hw + texel) * (2 * (grid + 1) ** 2), 1
+        if self.cells:
             self.s_cells = mi.Color3f(*c[7 + 3 * count:10 + 3 * count])
             self.kd_cells = mi.Color3f(*c[10 + 3 * count:13 + 3 * count])
         self.frame = ViewFrame(n, wi)
@@ -211,7 +218,7 @@ class _ControlVariate:
         y = self._point(u, v)
         return self.lcd._factor(mi.Point2f(u, v), dr.dot(dr.normalize(p_world - y), self.lcd_n))
 
-    def _cells(self, p_world, uv, cell, hit, window_lobe) -> list:
+    def _cells(self, si, uv, cell, hit, window_lobe) -> list:
         """Per pattern, the per-cell terms (S q(y) + kd (1 - ks) q^d(y)) R_c(y) / G(y) at the LCD
         point uv in ``cell`` (:meth:`_cell`), plus ``window_lobe`` R_c (the window term, per sr;
         None without one)."""
@@ -220,15 +227,17 @@ class _ControlVariate:
         col = dr.clip(mi.Int32(dr.floor(gu)), 0, k - 1)
         row = dr.clip(mi.Int32(dr.floor(gv)), 0, k - 1)
         fu, fv = gu - mi.Float(col), gv - mi.Float(row)
-        v00 = self.lobe_base + mi.UInt32(row * side + col)
+
+        step = self.lobe_step
+        v00 = self.lobe_base + mi.UInt32(row * side + col) * step
 
         def bilinear(at):
-            q00, q01 = (dr.gather(mi.Float, self.lobe_grid, at + j, hit) for j in (0, 1))
-            q10, q11 = (dr.gather(mi.Float, self.lobe_grid, at + side + j, hit) for j in (0, 1))
+            q00, q01 = (dr.gather(mi.Float, self.lobe_grid, at + j * step, hit) for j in (0, 1))
+            q10, q11 = (dr.gather(mi.Float, self.lobe_grid, at + (side + j) * step, hit) for j in (0, 1))
             return dr.lerp(dr.lerp(q00, q01, fu), dr.lerp(q10, q11, fu), fv)
 
-        lobe = self.s_cells * bilinear(v00) + self.kd_cells * bilinear(v00 + side * side)
-        rel = p_world - self._point(uv.x, uv.y)
+        lobe = self.s_cells * bilinear(v00) + self.kd_cells * bilinear(v00 + side * side * step)
+        rel = si.p - self._point(uv.x, uv.y)
         dist2 = dr.squared_norm(rel)
         cos_emit = dr.dot(rel, self.lcd_n) * dr.rsqrt(dr.maximum(dist2, 1e-30))
         per_sr = dr.select(cos_emit > 0, dist2 / dr.maximum(cos_emit, 1e-12), 0.0) * lobe
@@ -258,16 +267,16 @@ class _ControlVariate:
         """Per pattern, g_p(wo) (Color3f) for the local light direction wo that meets the LCD at uv."""
         w = self.frame.to_view(wo)
         d_s = ltc_density(self.m, w)
-        if self.lobe_grid is not None:
+        if self.cells:
             # "ltc-cells": the per-cell terms replace the block diffuse term (its weight is 0 in
             # this mode), so neither the block radiance nor the block decay is needed here
             cell = self._cell(uv)
             if not self.window:
-                cells = self._cells(si.p, uv, cell, hit, None)
+                cells = self._cells(si, uv, cell, hit, None)
                 return [dr.select(hit, self.spec[p] * d_s + cells[p], 0.0) for p in range(self.count)]
             # inside the window its cells' own radiance, outside it the one-radiance term
             inside, omega = self._window_cell(cell, hit)
-            cells = self._cells(si.p, uv, cell, hit, self.s_win * (omega * d_s))
+            cells = self._cells(si, uv, cell, hit, self.s_win * (omega * d_s))
             one = dr.select(inside, 0.0, d_s)
             return [dr.select(hit, self.spec[p] * one + cells[p], 0.0) for p in range(self.count)]
         K = self.K
@@ -282,6 +291,95 @@ class _ControlVariate:
             lbar = mi.Color3f(*(dr.gather(mi.Float, self.block_rad, idx + c * (K * K), hit) for c in range(3)))
             out.append(dr.select(hit, lbar * g_d + self.spec[p] * d_s, 0.0))
         return out
+
+
+class _GridControlVariate(_ControlVariate):
+    """"ltc-grid": the per-cell terms of "ltc-cells" (specular where roughness >=
+    ``ltc_cells_min_roughness``, diffuse everywhere; no one-radiance or window term), with all of
+    their per-texel work in this integrator's kernels: the maps, the view frame, the LTC lookup
+    (:func:`~mitsvbrdf_plugins.lcd_integrals.ltc_lookup`), S and kd (1 - ks), the lobe values at the
+    grid vertices and K_p, one lane per texel (:meth:`closed_form`); the sample lanes then take the
+    lobe values and weights from that result (:meth:`use`) for the residual. torch supplies only the
+    patterns' grid radiance T_{p,v}, a fixed linear map of the pattern
+    (:func:`mitsvbrdf.render.control_variate.control_variate`), and the LTC table.
+
+    Args: the ``lcd`` emitter; ``grid_rad`` the flat (B, P, 3, (k + 1)^2) T_{p,v}; ``table`` the
+    flat (n, n, 6) LTC table, n = ``table_size``; k = ``grid``; the lanes' material ``b`` and
+    ``texel`` index; hw = H W; the count P; ``min_cos_view`` and ``min_roughness`` (the
+    integrator's ltc_min_cos_view and ltc_cells_min_roughness)."""
+
+    def __init__(self, lcd, grid_rad, table, table_size: int, grid: int, b, texel, hw: int, count: int,
+                 min_cos_view: float, min_roughness: float):
+        self.lcd, self.count, self.b, self.grid = lcd, count, b, grid
+        self.grid_rad, self.table, self.table_size = grid_rad, table, table_size
+        self.min_cos_view, self.min_roughness = min_cos_view, min_roughness
+        self.cells, self.window = True, 0
+        self.to_world = mi.Transform4f(lcd.to_world())
+        self.lcd_n = lcd.normal()
+        self.texel_lane = b * hw + texel
+
+    def _vertex_lobes(self, si, u, v):
+        """q_v = D_ltc(w_v) G_v d_v and q^d_v = (n . w_v)^+ / pi G_v d_v at the LCD
+        point (u, v): w_v the direction to it, G_v = cos(theta_lcd) / r^2, d_v the decay's cosine
+        factor (:func:`mitsvbrdf.render.control_variate._grid_geometry` and ``_lobe_grid``)."""
+        rel = self._point(u, v) - si.p
+        dist2 = dr.maximum(dr.squared_norm(rel), 1e-30)
+        d = rel * dr.rsqrt(dist2)
+        cos_emit = -dr.dot(d, self.lcd_n)
+        g = dr.maximum(cos_emit, 0.0) / dist2
+        if self.lcd.has_decay:  # at the centre: the cosine factor alone
+            g = g * self.lcd._factor(mi.Point2f(0.5, 0.5), cos_emit)
+        w = si.to_local(d)
+        return ltc_density(self.m, self.frame.to_view(w)) * g, dr.maximum(dr.dot(self.frame.n, w), 0.0) * (g / dr.pi)
+
+    def closed_form(self, si, active, bsdf) -> tuple:
+        """(One lane per texel, materials outermost.) The per-texel values the residual needs,
+        ``[q_0 .. q_{V-1}, q^d_0 .. q^d_{V-1}, S (3), kd (1 - ks) (3)]`` (V = (k + 1)^2 vertices,
+        row-major; Floats), and per pattern K_p (Color3f) at each lane's texel:
+        ``S sum_v q_v T_{p,v} + kd (1 - ks) sum_v q^d_v T_{p,v}``; 0 where ``active`` is false."""
+        n, kd, ks, r = bsdf.maps(si, active)
+        self.frame = ViewFrame(n, si.wi)
+        cos_v = self.frame.cos_v
+        self.m, a_one, a_s = ltc_lookup(self.table, self.table_size, r, cos_v)
+        ok = active & (cos_v > 0) & (si.wi.z > 0)  # the shading normal and the sample face the camera
+        spec = ok & (cos_v >= self.min_cos_view) & (r >= self.min_roughness)
+        self.s_cells = dr.select(spec, ks * (a_one - a_s) + a_s, 0.0)
+        self.kd_cells = dr.select(ok, kd * (1.0 - ks), 0.0)
+        k, side = self.grid, self.grid + 1
+        V = side * side
+        base = self.b * (self.count * 3 * V)
+        q_all, qd_all = [], []
+        out = [mi.Color3f(0.0) for _ in range(self.count)]
+        for row in range(side):
+            for col in range(side):
+                q, qd = self._vertex_lobes(si, mi.Float(col / k), mi.Float(row / k))
+                q_all.append(dr.select(active, q, 0.0))
+                qd_all.append(dr.select(active, qd, 0.0))
+                lobe = self.s_cells * q + self.kd_cells * qd
+                for p in range(self.count):
+                    at = base + (p * 3 * V + row * side + col)
+                    out[p] += lobe * mi.Color3f(*(dr.gather(mi.Float, self.grid_rad, at + c * V, active)
+                                                  for c in range(3)))
+        weights = [self.s_cells.x, self.s_cells.y, self.s_cells.z, self.kd_cells.x, self.kd_cells.y, self.kd_cells.z]
+        return q_all + qd_all + weights, [dr.select(active, o, 0.0) for o in out]
+
+    def use(self, per_texel):
+        """(Sample lanes.) Take the lobe values and weights from ``per_texel``, the concatenation
+        of :meth:`closed_form`'s first result (layout (2 V + 6, B H W))."""
+        V = (self.grid + 1) ** 2
+        self.lobe_grid, self.lobe_step = per_texel, dr.width(per_texel) // (2 * V + 6)
+        self.lobe_base = self.texel_lane
+
+        def weight(j):
+            return dr.gather(mi.Float, per_texel, self.texel_lane + (2 * V + j) * self.lobe_step)
+
+        self.s_cells = mi.Color3f(*(weight(j) for j in range(3)))
+        self.kd_cells = mi.Color3f(*(weight(j) for j in range(3, 6)))
+        return self
+
+    def pointwise(self, si, wo, uv, hit) -> list:
+        """Per pattern, g_p(wo) (Color3f): the per-cell terms alone."""
+        return [dr.select(hit, c, 0.0) for c in self._cells(si, uv, self._cell(uv), hit, None)]
 
 
 class _PatternLight:
@@ -520,10 +618,12 @@ class ImportanceIntegrator(mi.SamplingIntegrator):
         ``seed + b`` and the lane's (texel, sample) index, so its image does not depend on the
         rest of the batch. ``seed`` may be an opaque ``mi.UInt32`` (no recompilation).
 
-        ``control``: None (plain Monte Carlo), or ``(block_radiance, coefficients, lobe_grid)``,
-        the flat arrays of :class:`mitsvbrdf.render.control_variate.ControlVariate` (lobe_grid
-        None unless "ltc-cells"); then the result is only the residual's estimate, to which the
-        caller adds the control variate's ``known``.
+        ``control``: None (plain Monte Carlo), or ``(block_radiance, coefficients, lobe_grid,
+        grid_radiance, ltc_table)``, the flat arrays of
+        :class:`mitsvbrdf.render.control_variate.ControlVariate` (lobe_grid None unless
+        "ltc-cells"; in "ltc-grid" only grid_radiance and ltc_table are used); then the result is
+        only the residual's estimate, to which the caller adds the control variate's ``known``,
+        except in "ltc-grid", where these kernels add K_p themselves (one lane per texel).
         """
         H, W = resolution
         lcd = self.lcd(scene)
@@ -542,8 +642,10 @@ class ImportanceIntegrator(mi.SamplingIntegrator):
             sampler = _StratifiedSampler(mi.UInt32(seed) + b, texel, k - texel * spp)
         else:
             sampler = _LaneSampler(mi.UInt32(seed) + b, k)
-        cv = None
-        if control is not None:
+        cv = known = None
+        if control is not None and self.control_variate == "ltc-grid":
+            cv, known = self._grid_closed_form(scene, shape, lcd, control, resolution, batch, P, b, texel)
+        elif control is not None:
             n, _, _, _ = shape.bsdf().maps(si, ok)
             cv = _ControlVariate(lcd, control[0], control[1], self.cv_blocks, b, texel, H * W, P, n, si.wi,
                                  control[2], self.ltc_grid, self.ltc_window)
@@ -553,6 +655,8 @@ class ImportanceIntegrator(mi.SamplingIntegrator):
         dr.eval(values)
         chans = [dr.block_sum(c, spp) / spp for val in values for c in (val.x, val.y, val.z)]
         # chans[p * 3 + c] has batch * H * W entries ordered (b, row, col).
+        if known is not None:
+            chans = [c + k for c, k in zip(chans, known)]
         hw = H * W
         flat = dr.zeros(mi.Float, batch * P * 3 * hw)
         t = dr.arange(mi.UInt32, batch * hw)
@@ -560,6 +664,28 @@ class ImportanceIntegrator(mi.SamplingIntegrator):
         for pc, c in enumerate(chans):
             dr.scatter(flat, c, (tb * (P * 3) + pc) * hw + (t - tb * hw))
         return mi.TensorXf(flat, shape=(batch * P, 3, H, W))
+
+    def _grid_closed_form(self, scene, shape, lcd, control, resolution, batch: int, P: int, b, texel):
+        """"ltc-grid": the control variate of the sample lanes (material ``b``, ``texel``) and K_p,
+        3 P Floats of batch H W entries ordered (b, row, col), from one kernel over the texels."""
+        H, W = resolution
+        hw = H * W
+        t = dr.arange(mi.UInt32, batch * hw)
+        tb = t // hw
+        grid_rad, table = control[3], control[4]
+        size = int(round((dr.width(table) // 6) ** 0.5))
+
+        def variate(lane_b, lane_texel):
+            return _GridControlVariate(lcd, grid_rad, table, size, self.ltc_grid, lane_b, lane_texel, hw, P,
+                                       self.ltc_min_cos_view, self.ltc_cells_min_roughness)
+
+        si_t, ok_t = self._texel_interactions(scene, shape, t - tb * hw, tb, H, W, batch)
+        per_texel, known = variate(tb, t - tb * hw).closed_form(si_t, ok_t, shape.bsdf())
+        known = [c for val in known for c in (val.x, val.y, val.z)]
+        # One kernel; its results concatenated (scattered into one array instead, each scatter
+        # became a kernel of its own).
+        dr.eval(per_texel, known)
+        return variate(b, texel).use(dr.concat(per_texel)), known
 
     def to_string(self):
         return (f"ImportanceIntegrator[sampler={self.sampler}, control_variate={self.control_variate}, "

@@ -12,10 +12,16 @@ the view), as :func:`mitsvbrdf.render.ltc.view_frame` defines it for the LTC tab
 
 from __future__ import annotations
 
+import math
+
 import drjit as dr
 import mitsuba as mi
 
+from mitsvbrdf.render.ltc_fit import MAX_VIEW_ANGLE
+
 _TINY = 1e-24
+#: sqrt(1 - cos(MAX_VIEW_ANGLE)) of :mod:`mitsvbrdf.render.ltc_fit`: the table's last column
+_MAX_VIEW_X = math.sqrt(1.0 - math.cos(MAX_VIEW_ANGLE))
 
 
 class ViewFrame:
@@ -47,3 +53,28 @@ def ltc_density(m, w):
     wp = mi.Vector3f(a * w.x + b * w.z, c * w.y, d * w.x + w.z)
     len2 = dr.maximum(dr.squared_norm(wp), _TINY)
     return dr.maximum(wp.z, 0.0) * dr.abs(c * (a - b * d)) / (dr.pi * len2 * len2)
+
+
+def ltc_lookup(table, size: int, roughness, cos_v):
+    """The LTC table's lookup, as :meth:`mitsvbrdf.render.ltc_fit.LtcTable.lookup` does it (bilinear
+    in (r, sqrt(1 - cos theta_v)), albedos divided by the hemisphere mass), for the flat
+    (size, size, 6) ``table`` (M^-1 entries a, b, c, d, then A_1, A_S per entry): returns
+    ``((a, b, c, d), A_1, A_S)``, differentiable in roughness and cos theta_v."""
+    n = size - 1
+    fr = dr.clip(roughness, 0.0, 1.0) * n
+    x = dr.sqrt(dr.maximum(1.0 - dr.clip(cos_v, 0.0, 1.0), 0.0) + 1e-12)
+    fv = dr.minimum(x, _MAX_VIEW_X) * n
+    i0 = dr.clip(mi.Int32(dr.floor(dr.detach(fr))), 0, n - 1)
+    j0 = dr.clip(mi.Int32(dr.floor(dr.detach(fv))), 0, n - 1)
+    tr, tv = fr - mi.Float(i0), fv - mi.Float(j0)
+    at = mi.UInt32(i0 * size + j0) * 6
+
+    def entry(k):
+        v00, v01 = (dr.gather(mi.Float, table, at + o + k) for o in (0, 6))
+        v10, v11 = (dr.gather(mi.Float, table, at + o + k) for o in (size * 6, size * 6 + 6))
+        return dr.lerp(dr.lerp(v00, v01, tv), dr.lerp(v10, v11, tv), tr)
+
+    a, b, c, d, a_one, a_s = (entry(k) for k in range(6))
+    # the hemisphere mass (1 + cos phi) / 2 of :func:`mitsvbrdf.render.ltc_fit.hemisphere_mass`
+    mass = dr.maximum(0.5 * (1.0 + dr.sign(a - b * d) * a * dr.rsqrt(dr.maximum(a * a + d * d, _TINY))), 1e-3)
+    return (a, b, c, d), a_one / mass, a_s / mass

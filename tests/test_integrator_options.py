@@ -41,6 +41,7 @@ OPTIONS = {
     "ltc-cells": {},
     "ltc-cells-8-grid": {"control_variate": "ltc-cells", "ltc_grid": 8, "ltc_cells_min_roughness": 0.3},
     "ltc-cells-window": {"control_variate": "ltc-cells", "ltc_window": 4},
+    "ltc-grid": {"control_variate": "ltc-grid", "ltc_grid": 4},
     "pattern-light": {"control_variate": "ltc", "light_sampling": "patterns"},
     "plain-pattern-light": {"sampler": "independent", "control_variate": "none", "light_sampling": "patterns"},
 }
@@ -165,7 +166,7 @@ def test_window_control_variate_removes_most_noise_of_cell_patterns_under_a_narr
 # ---- gradients -----------------------------------------------------------------------------
 
 @pytest.mark.parametrize("option", ["stratified", "diffuse-cv", "ltc-cv", "ltc-cells", "ltc-cells-window",
-                                    "pattern-light"])
+                                    "ltc-grid", "pattern-light"])
 def test_pattern_gradient_matches_finite_differences_and_the_reference(rigs, option):
     rig = rigs[(option, "decay")]
     # the window term's roughness range for it, the per-cell grid's for the others
@@ -197,7 +198,7 @@ def test_pattern_gradient_matches_finite_differences_and_the_reference(rigs, opt
     assert abs(mean - g_ref[cell].item()) <= 4 * sem + 0.01 * abs(g_ref[cell].item())
 
 
-@pytest.mark.parametrize("option", ["stratified", "ltc-cv", "ltc-cells", "ltc-cells-window"])
+@pytest.mark.parametrize("option", ["stratified", "ltc-cv", "ltc-cells", "ltc-cells-window", "ltc-grid"])
 @pytest.mark.parametrize("name", ["roughness", "normal", "diffuse"])
 def test_map_gradients_match_finite_differences_and_the_reference(rigs, option, name):
     rig = rigs[(option, "plain-display")]
@@ -268,7 +269,7 @@ def test_extremes_give_finite_values_and_gradients(rigs, option, case):
 
 # ---- one pass, batches, no recompilation -----------------------------------------------------
 
-@pytest.mark.parametrize("option", ["ltc-cv", "diffuse-cv", "ltc-cells", "pattern-light"])
+@pytest.mark.parametrize("option", ["ltc-cv", "diffuse-cv", "ltc-cells", "ltc-grid", "pattern-light"])
 def test_all_patterns_and_materials_in_one_pass_equal_separate_renders(rigs, option):
     rig = rigs[(option, "decay")]
     m = ms.SVBRDF.cat([textured_material(8, seed=1), textured_material(8, seed=2)])
@@ -283,13 +284,80 @@ def test_all_patterns_and_materials_in_one_pass_equal_separate_renders(rigs, opt
         torch.testing.assert_close(both[1, k], one[0, 0], rtol=1e-4, atol=1e-6)
 
 
-@pytest.mark.parametrize("option", ["ltc-cv", "ltc-cells", "plain"])
+@pytest.mark.parametrize("option", ["ltc-cv", "ltc-cells", "ltc-grid", "plain"])
 def test_new_data_and_seed_reuse_the_compiled_kernels(rigs, option):
     rig = rigs[(option, "plain-display")]
     m1, m2 = textured_material(8, seed=1), textured_material(8, seed=2)
     ms.render(m1, pt.random(n=2, seed=1), rig, method="mitsuba", spp=4, seed=0)
     hist = jit_kernels_of(lambda: ms.render(m2, pt.random(n=2, seed=2), rig, method="mitsuba", spp=4, seed=5))
     assert hist and all(k["cache_hit"] for k in hist)
+
+
+# ---- "ltc-grid": the per-cell terms in the integrator's kernels --------------------------------
+
+#: "ltc-cells" reduced to what "ltc-grid" computes: the per-cell terms alone, from roughness 0.2
+PER_CELL_ONLY = {"control_variate": "ltc-cells", "ltc_grid": 4, "ltc_min_roughness": 0.2,
+                 "ltc_cells_min_roughness": 0.2, "ltc_window": 0}
+#: float32 sums of the same terms in another order: a few hundred ulps of the largest value
+SAME_SUM = {"rtol": 1e-4, "atol": 0.0}
+
+
+@pytest.fixture(scope="module")
+def grid_and_cells(tmp_path_factory):
+    """Rigs of "ltc-grid" and of its torch-side twin (:data:`PER_CELL_ONLY`), with decay."""
+    d = tmp_path_factory.mktemp("grid")
+    return tuple(ms.Rig.from_scene(scene_with(d / f"{n}.xml", o, DISPLAY["decay"]))
+                 for n, o in (("grid", {"control_variate": "ltc-grid", "ltc_grid": 4}), ("cells", PER_CELL_ONLY)))
+
+
+def test_the_grid_estimator_renders_what_the_per_cell_terms_give_in_torch(grid_and_cells):
+    """Same samples (seed), same control variate: the two implementations give one image."""
+    grid, cells = grid_and_cells
+    m = ms.SVBRDF.cat([textured_material(8, seed=1, roughness=(0.05, 0.9)), textured_material(8, seed=2)])
+    p = pt.random(n=3, seed=4)
+    a = ms.render(m, p, grid, method="mitsuba", spp=4, seed=5)
+    b = ms.render(m, p, cells, method="mitsuba", spp=4, seed=5)
+    torch.testing.assert_close(a, b, rtol=SAME_SUM["rtol"], atol=SAME_SUM["rtol"] * b.abs().max().item())
+
+
+@pytest.mark.parametrize("name", ["patterns", "normal", "roughness", "specular", "diffuse"])
+def test_the_grid_estimator_has_the_gradients_of_the_per_cell_terms_in_torch(grid_and_cells, name):
+    grid, cells = grid_and_cells
+    m = textured_material(8, seed=3, roughness=(0.1, 0.8))
+    p = pt.random(n=2, seed=6)
+
+    def grad(rig):
+        maps = {k: v.detach().clone() for k, v in m.maps().items()}
+        leaf = p.clone() if name == "patterns" else maps[name]
+        leaf.requires_grad_(True)
+        img = ms.render(ms.SVBRDF(**maps), leaf if name == "patterns" else p, rig, method="mitsuba", spp=4, seed=7)
+        (g,) = torch.autograd.grad((img * torch.linspace(0.5, 1.5, img.numel()).view_as(img)).sum(), leaf)
+        return g
+
+    a, b = grad(grid), grad(cells)
+    torch.testing.assert_close(a, b, rtol=SAME_SUM["rtol"], atol=SAME_SUM["rtol"] * b.abs().max().item())
+
+
+def test_the_kernels_ltc_lookup_is_the_tables():
+    """The integrator's own LTC lookup (Dr.Jit) against :meth:`LtcTable.lookup` (torch), over the
+    table's range and beyond it (roughness below 0 and above 1, grazing and normal views)."""
+    import mitsvbrdf_plugins
+
+    from mitsvbrdf.render.ltc_fit import default_table
+
+    mi = mitsvbrdf_plugins.register("llvm_ad_rgb")
+    from mitsvbrdf_plugins.lcd_integrals import ltc_lookup
+
+    r, c = torch.meshgrid(torch.linspace(-0.1, 1.1, 37), torch.tensor([-0.2, 0.0, 1e-4, 0.05, 0.3, 0.7, 0.99, 1.0]),
+                          indexing="ij")
+    r, c = r.reshape(-1), c.reshape(-1)
+    table = default_table()
+    m_inv, a_one, a_s = table.lookup(r, c)
+    want = torch.stack([m_inv[:, 0, 0], m_inv[:, 0, 2], m_inv[:, 1, 1], m_inv[:, 2, 0], a_one, a_s], -1)
+    (a, b, cc, d), one, s = ltc_lookup(mi.Float(table.grid.reshape(-1).numpy()), table.size,
+                                       mi.Float(r.numpy()), mi.Float(c.numpy()))
+    got = torch.tensor(np.stack([np.array(v) for v in (a, b, cc, d, one, s)], -1))
+    torch.testing.assert_close(got, want, rtol=1e-5, atol=1e-6)
 
 
 # ---- the closed form (torch side) ----------------------------------------------------------

@@ -61,6 +61,17 @@ disagree. Two terms (either may be switched off by the scene file's integrator o
   residual is then ``R_c (f cos d - S omega_c D_ltc)`` inside the window (the fit's error) and the
   tail ``f R cos d`` outside it.
 
+* the per-cell terms alone, in the integrator's kernels ("ltc-grid"): the per-cell specular term
+  where roughness >= ``ltc_cells_min_roughness`` (no one-radiance term, no window: narrower lobes
+  are left to Monte Carlo) and the per-cell diffuse term everywhere, as in "ltc-cells", but with
+  all of the per-texel work (the LTC lookup, S, the lobe grid q_v, q^d_v, K_p) done by the
+  integrator, one lane per texel (plugins/importance_integrator.py, ``_GridControlVariate``). This
+  module gives it only the patterns' grid radiance T_{p,v} (:attr:`ControlVariate.grid_radiance`,
+  the fixed linear map of the pattern above) and the LTC table. At 64 px, B = 4, "ltc-cells"
+  spends about half of a 4-spp render in torch's closed form (docs/benchmarks/cv_cost.md): the
+  per-texel work there is many small tensor operations, each a pass over memory, where one kernel
+  does it in one pass. ``known`` is None: the integrator's result is the whole estimate.
+
 Rejected alternatives (tried during development, not kept as options): the closed form inside
 the plugin, as one Dr.Jit kernel with the K x K block polygons unrolled, took the LLVM backend
 seconds per block to compile, and a per-block contraction there cost more in gathers than the
@@ -111,7 +122,8 @@ class ControlVariate:
     """Per-texel coefficients of g_p for the plugin and its exact integral.
 
     Attributes:
-        block_radiance: (B, P, 3, K * K) Lbar_{p,b}, block b = row * K + column.
+        block_radiance: (B, P, 3, K * K) Lbar_{p,b}, block b = row * K + column (None in mode
+            "ltc-grid", as ``texel`` and ``known``: its integrator computes what it needs).
         texel: (B, H * W, 4 + 3 + 3 P [+ 6 [+ 5 + w^2]]) per texel: the LTC's M^-1 entries
             (a, b, c, d), the diffuse weight kd (1 - ks) (0 where the diffuse term is off), c_p S
             for every pattern (0 where the one-radiance specular term is off) and, in mode
@@ -119,15 +131,20 @@ class ControlVariate:
             per-cell diffuse weight); with a window (w = ``ltc_window`` > 0) then S (0 where the
             window term is off), the window's first cell row and column, and omega_c for its
             w x w cells, row-major.
-        known: (B, P, 3, H, W) K_p(x).
+        known: (B, P, 3, H, W) K_p(x); None in mode "ltc-grid", whose integrator computes it.
         lobe_grid: mode "ltc-cells": (B, H * W, 2, (k + 1)^2) q_v and q^d_v, vertices row-major;
             else None.
+        grid_radiance: mode "ltc-grid": (B, P, 3, (k + 1)^2) T_{p,v}, vertices row-major; else None.
+        ltc_table: mode "ltc-grid": the LTC table (n, n, 6) (:attr:`.ltc_fit.LtcTable.grid`) for the
+            integrator's own lookup; else None.
     """
 
-    block_radiance: Tensor
-    texel: Tensor
-    known: Tensor
+    block_radiance: Tensor | None
+    texel: Tensor | None
+    known: Tensor | None
     lobe_grid: Tensor | None = None
+    grid_radiance: Tensor | None = None
+    ltc_table: Tensor | None = None
 
 
 def _block_average(rad: Tensor, k: int) -> Tensor:
@@ -409,7 +426,7 @@ def _peak_block(rig: Rig, uv: Tensor, x: Tensor, k: int) -> tuple[Tensor, Tensor
     return block, (torch.ones_like(uv[:, 0]) if decay is None else decay)
 
 
-MODES = ("diffuse", "ltc", "ltc-cells")
+MODES = ("diffuse", "ltc", "ltc-cells", "ltc-grid")
 
 
 @dataclass
@@ -571,7 +588,8 @@ def control_variate(svbrdf, patterns: Tensor, rig: Rig, *, mode: str = "ltc-cell
     (that, with the specular lobe under every cell's radiance where roughness >=
     ``ltc_cells_min_roughness``, on a ``ltc_grid`` grid, and with ``ltc_window`` > 0 under the
     cells of a window around the peak of narrower lobes down to ``ltc_window_min_roughness``);
-    ``blocks``: K; see the module docstring. What depends on the materials alone is reused from
+    ``blocks``: K; "ltc-grid" (the per-cell terms alone, ``known`` left to the integrator's
+    kernel); see the module docstring. What depends on the materials alone is reused from
     the last call with the same maps (:data:`LAST_MATERIALS`), so a second set of patterns on the
     same materials costs only the patterns' part.
     """
@@ -584,6 +602,10 @@ def control_variate(svbrdf, patterns: Tensor, rig: Rig, *, mode: str = "ltc-cell
     h, w = rig.lcd_cells
     P = patterns.shape[-4]
     rad = rig.material_radiance(patterns, B, dev, dt).reshape(B, P, 3, h, w)
+    if mode == "ltc-grid":  # the rest is the integrator's
+        return ControlVariate(block_radiance=None, texel=None, known=None,
+                              grid_radiance=_grid_radiance(rig, ltc_grid, rad),
+                              ltc_table=default_table().grid.to(dev, dt))
     options = (mode, blocks, ltc_min_roughness, ltc_min_cos_view, ltc_grid, ltc_cells_min_roughness, ltc_window,
                ltc_window_min_roughness)
     terms = LAST_MATERIALS.terms_for(svbrdf, rig, options, lambda: _material_terms(svbrdf, rig, *options))

@@ -11,7 +11,9 @@ compiled kernels; only a new resolution, spp or pattern count compiles new ones.
 The integrator's options in the scene file decide the estimator (sampler, control variate; see
 plugins/importance_integrator.py). With a control variate, its closed-form part and per-texel
 coefficients are computed here in torch (:mod:`.control_variate`), handed to the integrator,
-which estimates only the residual, and added back: one set of numbers for both halves.
+which estimates only the residual, and added back: one set of numbers for both halves. In mode
+"ltc-grid" torch computes only the patterns' grid radiance, and the integrator's kernels both
+halves.
 """
 
 from __future__ import annotations
@@ -123,7 +125,7 @@ def render_mitsuba(svbrdf, patterns: Tensor, rig: Rig, *, spp: int = 64, seed: i
     cv = integrator_control_variate(svbrdf, patterns, rig, integrator)
 
     @dr.wrap(source="torch", target="drjit")
-    def batch(normal, diffuse, roughness, specular, drive, seed_value, block_rad, coeffs, lobe_grid):
+    def batch(normal, diffuse, roughness, specular, drive, seed_value, block_rad, coeffs, lobe_grid, grid_rad, table):
         params["sample.bsdf.normal"] = normal
         params["sample.bsdf.diffuse"] = diffuse
         params["sample.bsdf.roughness"] = roughness
@@ -131,7 +133,9 @@ def render_mitsuba(svbrdf, patterns: Tensor, rig: Rig, *, spp: int = 64, seed: i
         params["lcd.emitter.data"] = drive
         params.update()
         control = None if cv is None else (block_rad.array, coeffs.array,
-                                           None if cv.lobe_grid is None else lobe_grid.array)
+                                           None if cv.lobe_grid is None else lobe_grid.array,
+                                           None if cv.grid_radiance is None else grid_rad.array,
+                                           None if cv.ltc_table is None else table.array)
         return integrator.render_texels(scene, (H, W), spp, seed_value, batch=B, control=control)
 
     def stacked(t):  # (B, C, H, W) -> (B * H, W, C): the plugin's layout, materials along rows
@@ -142,8 +146,8 @@ def render_mitsuba(svbrdf, patterns: Tensor, rig: Rig, *, spp: int = 64, seed: i
     images = batch(stacked(svbrdf.normal), stacked(svbrdf.diffuse), stacked(svbrdf.roughness),
                    stacked(svbrdf.specular), patterns.reshape(B * P, *patterns.shape[2:]).contiguous(),
                    dr.opaque(mi.UInt32, seed),
-                   empty if cv is None else cv.block_radiance.contiguous(),
-                   empty if cv is None else cv.texel.contiguous(),
-                   empty if cv is None or cv.lobe_grid is None else cv.lobe_grid.contiguous())
+                   *(empty if cv is None or t is None else t.contiguous()
+                     for t in ((None, None, None, None, None) if cv is None else
+                               (cv.block_radiance, cv.texel, cv.lobe_grid, cv.grid_radiance, cv.ltc_table))))
     images = images.reshape(B, P, 3, H, W)
-    return images if cv is None else images + cv.known
+    return images if cv is None or cv.known is None else images + cv.known

@@ -245,8 +245,12 @@ class _ControlVariate:
             per_sr = per_sr + window_lobe
         row_c, col_c = cell
         centre = mi.Point2f((col_c + 0.5) / self.lcd.w, (row_c + 0.5) / self.lcd.h)
+        if self.lcd.has_decay:  # the position factor at the cell's centre
+            per_sr = per_sr * self.lcd._factor(centre, mi.Float(1.0))
         first = self.b * self.count
-        return [self.lcd.radiance(centre, mi.Float(1.0), first + p, hit) * per_sr for p in range(self.count)]
+        # looked up at uv, as the caller's emitted radiance: the same gathers, which the JIT then
+        # computes once (through ``centre`` they were a second set per pattern and direction)
+        return [self.lcd.cell_radiance(uv, first + p, hit) * per_sr for p in range(self.count)]
 
     def _cell(self, uv):
         """The row and column (Float) of the LCD cell that holds uv."""
@@ -303,7 +307,7 @@ class _GridControlVariate(_ControlVariate):
     patterns' grid radiance T_{p,v}, a fixed linear map of the pattern
     (:func:`mitsvbrdf.render.control_variate.control_variate`), and the LTC table.
 
-    Args: the ``lcd`` emitter; ``grid_rad`` the flat (B, P, 3, (k + 1)^2) T_{p,v}; ``table`` the
+    Args: the ``lcd`` emitter; ``grid_rad`` the flat (B, P, (k + 1)^2, 3) T_{p,v}; ``table`` the
     flat (n, n, 6) LTC table, n = ``table_size``; k = ``grid``; the lanes' material ``b`` and
     ``texel`` index; hw = H W; the count P; ``min_cos_view`` and ``min_roughness`` (the
     integrator's ltc_min_cos_view and ltc_cells_min_roughness)."""
@@ -347,19 +351,18 @@ class _GridControlVariate(_ControlVariate):
         self.kd_cells = dr.select(ok, kd * (1.0 - ks), 0.0)
         k, side = self.grid, self.grid + 1
         V = side * side
-        base = self.b * (self.count * 3 * V)
+        base = self.b * (self.count * V)
         q_all, qd_all = [], []
         out = [mi.Color3f(0.0) for _ in range(self.count)]
+        # Unrolled: as a symbolic loop over the vertices it traced faster but ran 2-3x as long (k = 4).
         for row in range(side):
             for col in range(side):
                 q, qd = self._vertex_lobes(si, mi.Float(col / k), mi.Float(row / k))
                 q_all.append(dr.select(active, q, 0.0))
                 qd_all.append(dr.select(active, qd, 0.0))
                 lobe = self.s_cells * q + self.kd_cells * qd
-                for p in range(self.count):
-                    at = base + (p * 3 * V + row * side + col)
-                    out[p] += lobe * mi.Color3f(*(dr.gather(mi.Float, self.grid_rad, at + c * V, active)
-                                                  for c in range(3)))
+                for p in range(self.count):  # T_{p,v}: the 3 channels side by side
+                    out[p] += lobe * dr.gather(mi.Color3f, self.grid_rad, base + (p * V + row * side + col))
         weights = [self.s_cells.x, self.s_cells.y, self.s_cells.z, self.kd_cells.x, self.kd_cells.y, self.kd_cells.z]
         return q_all + qd_all + weights, [dr.select(active, o, 0.0) for o in out]
 

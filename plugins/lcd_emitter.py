@@ -108,13 +108,18 @@ class LCDEmitter(mi.Emitter):
                        m[6] * r + m[7] * g + m[8] * b)
         return mi.Color3f(r, g, b) * self.intensity
 
-    def radiance(self, uv, cos_emit, pattern=0, active=True):
-        """Emitted radiance of pattern ``pattern`` (an int or a per-lane UInt32 index into
-        ``data``) at LCD uv towards a direction with cosine ``cos_emit``."""
+    def cell_radiance(self, uv, pattern=0, active=True):
+        """The radiance of the cell that holds LCD uv under pattern ``pattern`` (an int or a
+        per-lane UInt32 index into ``data``), before decay."""
         cells = self.h * self.w
         base = self._cell(uv) + mi.UInt32(pattern) * (3 * cells)
         rgb = [dr.gather(mi.Float, self.data.array, base + c * cells, active) for c in range(3)]
-        return self._drive_to_radiance(rgb) * self._factor(uv, cos_emit)
+        return self._drive_to_radiance(rgb)
+
+    def radiance(self, uv, cos_emit, pattern=0, active=True):
+        """Emitted radiance of pattern ``pattern`` (an int or a per-lane UInt32 index into
+        ``data``) at LCD uv towards a direction with cosine ``cos_emit``."""
+        return self.cell_radiance(uv, pattern, active) * self._factor(uv, cos_emit)
 
     def radiance_all(self, uv, cos_emit, active=True, first=0, count=None) -> list:
         """``radiance`` of patterns first .. first + count - 1 (default: all) at the same points:

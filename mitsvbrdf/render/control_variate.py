@@ -134,7 +134,8 @@ class ControlVariate:
         known: (B, P, 3, H, W) K_p(x); None in mode "ltc-grid", whose integrator computes it.
         lobe_grid: mode "ltc-cells": (B, H * W, 2, (k + 1)^2) q_v and q^d_v, vertices row-major;
             else None.
-        grid_radiance: mode "ltc-grid": (B, P, 3, (k + 1)^2) T_{p,v}, vertices row-major; else None.
+        grid_radiance: mode "ltc-grid": (B, P, (k + 1)^2, 3) T_{p,v}, vertices row-major (the three
+            channels of a vertex side by side, for the integrator's gathers); else None.
         ltc_table: mode "ltc-grid": the LTC table (n, n, 6) (:attr:`.ltc_fit.LtcTable.grid`) for the
             integrator's own lookup; else None.
     """
@@ -604,7 +605,7 @@ def control_variate(svbrdf, patterns: Tensor, rig: Rig, *, mode: str = "ltc-cell
     rad = rig.material_radiance(patterns, B, dev, dt).reshape(B, P, 3, h, w)
     if mode == "ltc-grid":  # the rest is the integrator's
         return ControlVariate(block_radiance=None, texel=None, known=None,
-                              grid_radiance=_grid_radiance(rig, ltc_grid, rad),
+                              grid_radiance=_grid_radiance(rig, ltc_grid, rad).transpose(-1, -2),
                               ltc_table=default_table().grid.to(dev, dt))
     options = (mode, blocks, ltc_min_roughness, ltc_min_cos_view, ltc_grid, ltc_cells_min_roughness, ltc_window,
                ltc_window_min_roughness)

@@ -4,9 +4,12 @@ Monte Carlo part (the plugin's kernels), per estimator, on the materials of the 
     .venv/bin/python benchmarks/cv_cost.py                  # 4 procedural materials at 64 px, 4 spp
 
 Every estimator of :data:`estimators.ESTIMATORS` renders ``generate(n, size, seed=123)`` under
-MonoGrad at ``--spp`` (after one untimed render that compiles the kernels); the median of
+MonoGrad at ``--spp`` (after one untimed render each that compiles the kernels); the median of
 ``--repeats`` renders is the time, each with the material cache (:data:`LAST_MATERIALS`) cleared,
-as a training step's first render finds it. "closed form" is the median time of
+as a training step's first render finds it. The renders go in rounds, one of every estimator per
+round: timed one estimator after another, the later ones ran slower than the same renders timed
+beside "plain" (a process's state drifts as renders of other estimators allocate and cache).
+"closed form" is the median time of
 :func:`mitsvbrdf.render.control_variate.control_variate` alone on the same inputs; the rest of a
 render ("Monte Carlo and transfers") is the difference. The ratio column is each estimator's time
 over "plain" (the integrator before variance reduction): issue 14 asks for at most 1.5 at 4 spp.
@@ -27,7 +30,7 @@ from mitsvbrdf.data import procedural
 from mitsvbrdf.render.control_variate import LAST_MATERIALS
 from mitsvbrdf.render.mitsuba import integrator_control_variate, load_scene, variant_for
 from estimators import ESTIMATORS, estimator_rigs
-from report import OtherLoad, median_seconds, write_report
+from report import OtherLoad, interleaved_seconds, median_seconds, write_report
 
 ROOT = Path(__file__).resolve().parent.parent
 
@@ -53,11 +56,12 @@ def main() -> None:
     load = OtherLoad()
     rows = []
     with tempfile.TemporaryDirectory() as work:
-        for name, rig in estimator_rigs(Path(work)).items():
-            def render():
-                ms.render(m, pats, rig, method="mitsuba", spp=args.spp, seed=1)
-
-            total = median_seconds(render, args.repeats, before=LAST_MATERIALS.clear)  # warm-up compiles
+        rigs = estimator_rigs(Path(work))
+        totals = interleaved_seconds({name: (lambda rig=rig: ms.render(m, pats, rig, method="mitsuba", spp=args.spp,
+                                                                       seed=1)) for name, rig in rigs.items()},
+                                     args.repeats, before=LAST_MATERIALS.clear)
+        for name, rig in rigs.items():
+            total = totals[name]
             cf = closed_form(m, pats, rig)
             closed = median_seconds(cf, args.repeats, before=LAST_MATERIALS.clear) if cf is not None else 0.0
             rows.append({"estimator": name, "seconds": round(total, 4), "closed_form_s": round(closed, 4),

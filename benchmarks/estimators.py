@@ -33,7 +33,9 @@ ESTIMATORS = {"plain": {"sampler": "independent", "control_variate": "none"},
               "ltc-cells-8-grid-window": {"control_variate": "ltc-cells", "ltc_grid": 8, "ltc_cells_min_roughness": 0.2,
                                           "ltc_window": 8, "ltc_window_min_roughness": 0.02},
               "ltc-cells-32-grid": {"control_variate": "ltc-cells", "ltc_grid": 32, "ltc_cells_min_roughness": 0.1,
-                                    "ltc_window": 0}}
+                                    "ltc_window": 0},
+              "ltc-grid": {"control_variate": "ltc-grid", "ltc_grid": 4, "ltc_cells_min_roughness": 0.2},
+              "ltc-grid-8": {"control_variate": "ltc-grid", "ltc_grid": 8, "ltc_cells_min_roughness": 0.2}}
 
 
 def estimator_rigs(work: Path, names=None) -> dict[str, ms.Rig]:

@@ -76,6 +76,23 @@ def write_csv(path: Path, rows: list[dict]) -> None:
         w.writerows(rows)
 
 
+def interleaved_seconds(fns: dict, repeats: int = 5, *, before=None) -> dict:
+    """Median wall time of ``repeats`` calls of each of ``fns`` (name -> callable), in rounds of
+    one call each (after one untimed call each), so that every one sees the same drift of the
+    process and the machine; ``before()`` runs untimed ahead of every call."""
+    for fn in fns.values():
+        fn()
+    times = {name: [] for name in fns}
+    for _ in range(repeats):
+        for name, fn in fns.items():
+            if before is not None:
+                before()
+            t0 = time.perf_counter()
+            fn()
+            times[name].append(time.perf_counter() - t0)
+    return {name: statistics.median(t) for name, t in times.items()}
+
+
 def median_seconds(fn, repeats: int = 5, *, warmup: bool = True, before=None) -> float:
     """Median wall time of ``repeats`` calls of ``fn`` (after one untimed call with ``warmup``);
     ``before()``, when given, runs untimed ahead of every call (e.g. clearing a cache)."""

@@ -73,7 +73,8 @@ def main() -> None:
     text = (f"Command: `python benchmarks/cv_cost.py" + ("" if (args.n, args.size, args.spp) == (4, 64, 4) else
                                                          f" --n {args.n} --size {args.size} --spp {args.spp}") + "`\n\n"
             f"`generate({args.n}, size={args.size}, seed=123)` under MonoGrad at {args.spp} spp, "
-            f"{torch.get_num_threads()} threads; median of {args.repeats} renders (material cache cleared). "
+            f"{torch.get_num_threads()} threads; median of {args.repeats} renders in interleaved rounds "
+            "(material cache cleared). "
             f"{load.sentence()}\n\n"
             "| estimator | s / render | closed form (s) | Monte Carlo and transfers (s) | x plain |\n"
             "|---|---:|---:|---:|---:|\n" +

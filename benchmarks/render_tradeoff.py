@@ -5,6 +5,8 @@ Mitsuba path with each estimator of the ``importance`` integrator.
     .venv/bin/python benchmarks/render_tradeoff.py --quick    # smoke run, nothing written
     .venv/bin/python benchmarks/render_tradeoff.py --procedural-only --estimators plain,ltc-cells,... --name NAME
         # study 2 alone for some estimators: docs/benchmarks/render_tradeoff_procedural_NAME.{md,csv,png}
+    .venv/bin/python benchmarks/render_tradeoff.py --roughness-only --estimators plain,ltc-cells,... --name NAME
+        # study 1 alone, each estimator judged: docs/benchmarks/render_tradeoff_roughness_NAME.{md,csv}
 
 Study 1 (roughness): the bundled example's normal and diffuse maps with constant roughness r and
 ks = 0.3, for r in {0.01, 0.05, 0.1, 0.3, 0.6, 1.0}, plus a near-grazing case (r = 0.3 with every
@@ -203,39 +205,13 @@ def procedural_study(rigs: dict[str, ms.Rig], n: int, size: int, spps) -> tuple[
     return rows, lines
 
 
-def main() -> None:
-    ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
-    ap.add_argument("--error-size", type=int, default=32)
-    ap.add_argument("--time-size", type=int, default=128)
-    ap.add_argument("--procedural-n", type=int, default=4)
-    ap.add_argument("--procedural-size", type=int, default=64)
-    ap.add_argument("--skip-ltc-exact", action="store_true", help="leave out LTC-exact (by far the slowest method at 128 px)")
-    ap.add_argument("--quick", action="store_true")
-    ap.add_argument("--procedural-only", action="store_true", help="study 2 alone (needs --name)")
-    ap.add_argument("--estimators", default="", help=f"comma-separated subset of: {', '.join(ESTIMATORS)}")
-    ap.add_argument("--name", default="", help="suffix of a --procedural-only report's files")
-    ap.add_argument("--out", type=Path, default=ROOT / "docs" / "benchmarks")
-    args = ap.parse_args()
-    names = [n for n in args.estimators.split(",") if n] or list(ESTIMATORS)
-    unknown = [n for n in names if n not in ESTIMATORS]
-    if unknown:
-        ap.error(f"unknown estimators {', '.join(unknown)}; known: {', '.join(ESTIMATORS)}")
-    if args.procedural_only and not args.name:
-        ap.error("--procedural-only writes render_tradeoff_procedural_NAME: give --name")
-    load = OtherLoad()
-    cases = [(r, None) for r in (0.01, 0.05, 0.1, 0.3, 0.6, 1.0)] + [(0.3, 70.0)]
-    spps = SPPS
-    if args.quick:
-        args.error_size, args.time_size, cases, spps = 16, 32, [(0.05, None), (0.6, None)], (1, 4)
-        args.procedural_n, args.procedural_size = 2, 16
-    work = Path(tempfile.mkdtemp(prefix="render_tradeoff-"))
-    rigs = estimator_rigs(work, names)
-    if args.procedural_only:
-        procedural_only(rigs, args, spps)
-        return
+def roughness_study(rigs: dict[str, ms.Rig], args, cases, spps, judged: list[str],
+                    load: OtherLoad) -> tuple[list, list, list]:
+    """Study 1: per method, CPU time and relative RMSE per roughness case; for each estimator of
+    ``judged``, whether at LTC-prefiltered's CPU time it has at most half LTC-prefiltered's error.
+    Returns the rows, the error columns and the report's lines."""
     rig = rigs[DEFAULT]
     pats = torch.cat([monograd(), random(n=5, seed=0), step_edges(n=4)])
-
     rows = []
     with torch.no_grad():
         refs = {}
@@ -271,19 +247,78 @@ def main() -> None:
     fails = [f"{k} ({worst[k]:.1%})" for k in keys if worst[k] > 0.05]
     lines += ["", "LTC errors above 5% (worse of its modes): " + (", ".join(fails) if fails else "none") + "."]
     pre = ltc["ltc-prefiltered"]
-    verdict = []
-    for k in keys:
-        column = time_key(k)
-        e = at_time(rows, DEFAULT, k, pre[column], column)
-        if e is None:
-            fastest = min(r[column] for r in spp_rows(rows, DEFAULT))
-            verdict.append(f"{k}: NOT reached, its fastest render takes {fastest:.3f} s against "
-                           f"{pre[column]:.3f} s")
-        else:
-            verdict.append(f"{k}: {e:.4f} vs {pre[k]:.4f} at {pre[column]:.3f} s "
-                           f"({'half or less' if e <= 0.5 * pre[k] else 'NOT half'})")
-    lines += ["", f"At LTC-prefiltered's CPU time (on the material of the column's time), the default estimator "
-                  f"({DEFAULT}, interpolated along its spp curve) against LTC-prefiltered: " + "; ".join(verdict) + "."]
+    for est in judged:
+        verdict = []
+        for k in keys:
+            column = time_key(k)
+            e = at_time(rows, est, k, pre[column], column)
+            if e is None:
+                fastest = min(r[column] for r in spp_rows(rows, est))
+                verdict.append(f"{k}: NOT reached, its fastest render takes {fastest:.3f} s against "
+                               f"{pre[column]:.3f} s")
+            else:
+                verdict.append(f"{k}: {e:.4f} vs {pre[k]:.4f} at {pre[column]:.3f} s "
+                               f"({'half or less' if e <= 0.5 * pre[k] else 'NOT half'})")
+        who = f"the default estimator ({est}, " if est == DEFAULT else f"{est} ("
+        lines += ["", f"At LTC-prefiltered's CPU time (on the material of the column's time), {who}interpolated "
+                      f"along its spp curve) against LTC-prefiltered: " + "; ".join(verdict) + "."]
+    return rows, keys, lines
+
+
+def roughness_only(rows: list[dict], keys: list[str], lines: list[str], args, names: list[str]) -> None:
+    """Study 1 alone for the estimators ``names``, as render_tradeoff_roughness_NAME."""
+    command = " ".join(["benchmarks/render_tradeoff.py", "--roughness-only", f"--estimators {','.join(names)}",
+                        f"--name {args.name}"] + (["--skip-ltc-exact"] if args.skip_ltc_exact else []))
+    text = f"Command: `{command}`\n\n" + "\n".join(lines) + "\n"
+    print(text)
+    if args.quick:
+        return
+    write_report(args.out, f"render_tradeoff_roughness_{args.name}", "Estimators on the roughness study",
+                 "render_tradeoff.py", text, rows)
+
+
+def main() -> None:
+    ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
+    ap.add_argument("--error-size", type=int, default=32)
+    ap.add_argument("--time-size", type=int, default=128)
+    ap.add_argument("--procedural-n", type=int, default=4)
+    ap.add_argument("--procedural-size", type=int, default=64)
+    ap.add_argument("--skip-ltc-exact", action="store_true", help="leave out LTC-exact (by far the slowest method at 128 px)")
+    ap.add_argument("--quick", action="store_true")
+    ap.add_argument("--procedural-only", action="store_true", help="study 2 alone (needs --name)")
+    ap.add_argument("--roughness-only", action="store_true",
+                    help="study 1 alone, judging every estimator given against LTC-prefiltered (needs --name)")
+    ap.add_argument("--estimators", default="", help=f"comma-separated subset of: {', '.join(ESTIMATORS)}")
+    ap.add_argument("--name", default="", help="suffix of a --procedural-only or --roughness-only report's files")
+    ap.add_argument("--out", type=Path, default=ROOT / "docs" / "benchmarks")
+    args = ap.parse_args()
+    names = [n for n in args.estimators.split(",") if n] or list(ESTIMATORS)
+    unknown = [n for n in names if n not in ESTIMATORS]
+    if unknown:
+        ap.error(f"unknown estimators {', '.join(unknown)}; known: {', '.join(ESTIMATORS)}")
+    if args.procedural_only and not args.name:
+        ap.error("--procedural-only writes render_tradeoff_procedural_NAME: give --name")
+    if args.roughness_only and not args.name:
+        ap.error("--roughness-only writes render_tradeoff_roughness_NAME: give --name")
+    if args.roughness_only and DEFAULT not in names:
+        ap.error(f"--roughness-only renders its references with the default estimator's rig: include {DEFAULT}")
+    load = OtherLoad()
+    cases = [(r, None) for r in (0.01, 0.05, 0.1, 0.3, 0.6, 1.0)] + [(0.3, 70.0)]
+    spps = SPPS
+    if args.quick:
+        args.error_size, args.time_size, cases, spps = 16, 32, [(0.05, None), (0.6, None)], (1, 4)
+        args.procedural_n, args.procedural_size = 2, 16
+    work = Path(tempfile.mkdtemp(prefix="render_tradeoff-"))
+    rigs = estimator_rigs(work, names)
+    if args.procedural_only:
+        procedural_only(rigs, args, spps)
+        return
+    if args.roughness_only:
+        rows, keys, lines = roughness_study(rigs, args, cases, spps, [n for n in names if n != "plain"], load)
+        roughness_only(rows, keys, lines, args, names)
+        return
+    rig = rigs[DEFAULT]
+    rows, keys, lines = roughness_study(rigs, args, cases, spps, [DEFAULT], load)
 
     with torch.no_grad():
         proc_rows, proc_lines = procedural_study(rigs, args.procedural_n, args.procedural_size, spps)

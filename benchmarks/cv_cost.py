@@ -11,7 +11,8 @@ round: timed one estimator after another, the later ones ran slower than the sam
 beside "plain" (a process's state drifts as renders of other estimators allocate and cache).
 "closed form" is the median time of
 :func:`mitsvbrdf.render.control_variate.control_variate` alone on the same inputs; the rest of a
-render ("Monte Carlo and transfers") is the difference. The ratio column is each estimator's time
+render ("Monte Carlo and transfers") is the difference (for "ltc-grid", whose per-texel closed form
+runs in the integrator's kernels, that includes it). The ratio column is each estimator's time
 over "plain" (the integrator before variance reduction): issue 14 asks for at most 1.5 at 4 spp.
 Writes docs/benchmarks/cv_cost.md (+ CSV).
 """
@@ -74,7 +75,8 @@ def main() -> None:
                                                          f" --n {args.n} --size {args.size} --spp {args.spp}") + "`\n\n"
             f"`generate({args.n}, size={args.size}, seed=123)` under MonoGrad at {args.spp} spp, "
             f"{torch.get_num_threads()} threads; median of {args.repeats} renders in interleaved rounds "
-            "(material cache cleared). "
+            "(material cache cleared). 'closed form' is torch's part; ltc-grid's per-texel closed form runs in "
+            "the integrator's kernels and counts in the next column. "
             f"{load.sentence()}\n\n"
             "| estimator | s / render | closed form (s) | Monte Carlo and transfers (s) | x plain |\n"
             "|---|---:|---:|---:|---:|\n" +

@@ -19,9 +19,10 @@ Parameters:
                      diffuse term and the fitted LTC specular lobe under one radiance per texel)
                      or "ltc-cells" (both lobes, the specular where it is wide, under every LCD
                      cell's own radiance: for sparse patterns), or "ltc-grid" (the per-cell terms
-                     of "ltc-cells" alone, their lobe grid evaluated in this integrator's kernel
-                     instead of stored per texel: cheaper, and narrower lobes are left to Monte
-                     Carlo); Monte Carlo estimates only the residual, so every choice is unbiased.
+                     of "ltc-cells" alone, their per-texel work (LTC lookup, lobe grid, K_p) done
+                     in this integrator's kernels instead of torch's: cheaper; narrower lobes are
+                     left to Monte Carlo); Monte Carlo estimates only the residual, so every
+                     choice is unbiased.
     cv_blocks        (integer, default 8) the diffuse control variate sees the patterns averaged
                      over cv_blocks x cv_blocks blocks of cells (it must divide the LCD's cell
                      counts). More blocks: a closer control variate, more closed-form work per
@@ -227,7 +228,6 @@ class _ControlVariate:
         col = dr.clip(mi.Int32(dr.floor(gu)), 0, k - 1)
         row = dr.clip(mi.Int32(dr.floor(gv)), 0, k - 1)
         fu, fv = gu - mi.Float(col), gv - mi.Float(row)
-
         step = self.lobe_step
         v00 = self.lobe_base + mi.UInt32(row * side + col) * step
 

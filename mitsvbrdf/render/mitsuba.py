@@ -146,8 +146,8 @@ def render_mitsuba(svbrdf, patterns: Tensor, rig: Rig, *, spp: int = 64, seed: i
     images = batch(stacked(svbrdf.normal), stacked(svbrdf.diffuse), stacked(svbrdf.roughness),
                    stacked(svbrdf.specular), patterns.reshape(B * P, *patterns.shape[2:]).contiguous(),
                    dr.opaque(mi.UInt32, seed),
-                   *(empty if cv is None or t is None else t.contiguous()
-                     for t in ((None, None, None, None, None) if cv is None else
-                               (cv.block_radiance, cv.texel, cv.lobe_grid, cv.grid_radiance, cv.ltc_table))))
+                   *(empty if t is None else t.contiguous() for t in
+                     ((None,) * 5 if cv is None else
+                      (cv.block_radiance, cv.texel, cv.lobe_grid, cv.grid_radiance, cv.ltc_table))))
     images = images.reshape(B, P, 3, H, W)
     return images if cv is None or cv.known is None else images + cv.known

@@ -41,6 +41,14 @@ class ViewFrame:
         self.y = dr.cross(n, self.x)
         self.cos_v = cos_v
 
+    @classmethod
+    def of_axes(cls, x, n):
+        """The frame of the unit axes x and n (local) a :class:`ViewFrame` computed before (its
+        ``cos_v`` is not kept)."""
+        frame = cls.__new__(cls)
+        frame.x, frame.n, frame.y, frame.cos_v = x, n, dr.cross(n, x), None
+        return frame
+
     def to_view(self, v):
         return mi.Vector3f(dr.dot(self.x, v), dr.dot(self.y, v), dr.dot(self.n, v))
 
@@ -50,7 +58,7 @@ def ltc_density(m, w):
     [d, 0, 1]] given as m = (a, b, c, d): ``(z')^+ / pi |det M^-1| / |M^-1 w|^3`` with
     ``z' = (M^-1 w)_z / |M^-1 w|``."""
     a, b, c, d = m
-    wp = mi.Vector3f(a * w.x + b * w.z, c * w.y, d * w.x + w.z)
+    wp = warp(m, w)
     len2 = dr.maximum(dr.squared_norm(wp), _TINY)
     return dr.maximum(wp.z, 0.0) * dr.abs(c * (a - b * d)) / (dr.pi * len2 * len2)
 
@@ -78,3 +86,32 @@ def ltc_lookup(table, size: int, roughness, cos_v):
     # the hemisphere mass (1 + cos phi) / 2 of :func:`mitsvbrdf.render.ltc_fit.hemisphere_mass`
     mass = dr.maximum(0.5 * (1.0 + dr.sign(a - b * d) * a * dr.rsqrt(dr.maximum(a * a + d * d, _TINY))), 1e-3)
     return (a, b, c, d), a_one / mass, a_s / mass
+
+
+def warp(m, w):
+    """M^-1 w for the view-frame vector w and M^-1 given as m = (a, b, c, d) (:func:`ltc_density`)."""
+    a, b, c, d = m
+    return mi.Vector3f(a * w.x + b * w.z, c * w.y, d * w.x + w.z)
+
+
+def _unit_edge_z(p, q):
+    """The z component of theta (p x q) / |p x q| for unit vectors p, q (Lambert's formula's edge
+    term), as :func:`mitsvbrdf.render.polygon._unit_edge_z`: |p x q| = sqrt(1 - (p . q)^2), theta
+    from the same sine, so theta / |p x q| stays ~1 and finite (safe_sqrt: no infinite derivative)
+    as the edge shrinks."""
+    cos = dr.dot(p, q)
+    sin = dr.safe_sqrt(1.0 - cos * cos)
+    ratio = dr.select(sin > 1e-12, dr.atan2(sin, cos) / dr.maximum(sin, 1e-12), 1.0)
+    return ratio * (p.x * q.y - p.y * q.x)
+
+
+def grid_cell_form_factors(corners) -> list:
+    """Form factors (unclipped) of the m x n quads of a grid of corner vectors (rows of Vector3f,
+    (m + 1) x (n + 1), any length), as :func:`mitsvbrdf.render.polygon.grid_cell_form_factors`:
+    rows of Floats, m x n; neighbouring quads share their edge terms."""
+    c = [[v * dr.rsqrt(dr.maximum(dr.squared_norm(v), _TINY)) for v in row] for row in corners]
+    m, n = len(c) - 1, len(c[0]) - 1
+    across = [[_unit_edge_z(c[i][j], c[i][j + 1]) for j in range(n)] for i in range(m + 1)]
+    down = [[_unit_edge_z(c[i][j], c[i + 1][j]) for j in range(n + 1)] for i in range(m)]
+    return [[dr.abs(across[i][j] + down[i][j + 1] - across[i + 1][j] - down[i][j]) / (2.0 * dr.pi)
+             for j in range(n)] for i in range(m)]

@@ -16,12 +16,15 @@ Parameters:
                      (:mod:`mitsvbrdf.render.control_variate` computes it; the pointwise part is
                      :mod:`mitsvbrdf_plugins.lcd_integrals`): "none" (plain Monte Carlo),
                      "diffuse" (the diffuse term under block-averaged patterns), "ltc" (the
-                     diffuse term and the fitted LTC specular lobe under one radiance per texel)
-                     or "ltc-cells" (both lobes, the specular where it is wide, under every LCD
-                     cell's own radiance: for sparse patterns), or "ltc-grid" (the per-cell terms
-                     of "ltc-cells" alone, their per-texel work (LTC lookup, lobe grid, K_p) done
-                     in this integrator's kernels instead of torch's: cheaper; narrower lobes are
-                     left to Monte Carlo); Monte Carlo estimates only the residual, so every
+                     diffuse term and the fitted LTC specular lobe under one radiance per texel),
+                     "ltc-cells" (both lobes, the specular where it is wide, under every LCD
+                     cell's own radiance: for sparse patterns; narrower lobes under every cell of
+                     a window around their peak and one radiance elsewhere), or "ltc-grid" (the
+                     per-cell terms and the window of "ltc-cells", without its one-radiance term,
+                     their per-texel work (LTC lookup, lobe grid, window form factors, K_p) done in
+                     this integrator's kernels instead of torch's: a fraction of "ltc-cells"' time,
+                     with more noise under sparse patterns; docs/benchmarks/cv_cost.md and
+                     render_tradeoff_*_window.md); Monte Carlo estimates only the residual, so every
                      choice is unbiased.
     cv_blocks        (integer, default 8) the diffuse control variate sees the patterns averaged
                      over cv_blocks x cv_blocks blocks of cells (it must divide the LCD's cell
@@ -38,19 +41,21 @@ Parameters:
     ltc_min_roughness (float, default 0.1) below this roughness the specular lobe is left to
                      Monte Carlo alone: a near-mirror LTC lobe that misses the true one by a
                      fraction of its width would make the residual spikier, not smoother.
-    ltc_grid         (integer, default 16) "ltc-cells", "ltc-grid": the lobe is interpolated
-                     bilinearly from its values at the (ltc_grid + 1)^2 vertices of a grid over the
-                     LCD (it must divide the LCD's cell counts); "ltc-cells" stores (ltc_grid + 1)^2
-                     floats per texel, "ltc-grid" unrolls that many lobe evaluations into its
-                     closed-form kernel (its tracing time grows with them: meant for ltc_grid <= 8).
-    ltc_cells_min_roughness (float, default 0.2) "ltc-cells": below this roughness the lobe is too
-                     narrow for the grid, and the one-radiance term of "ltc" stays; "ltc-grid":
-                     below it the specular lobe is left to Monte Carlo.
-    ltc_window       (integer, default 8; 0: off) "ltc-cells": lobes narrower than that (down to
-                     ltc_window_min_roughness) are known exactly under every cell of a
-                     ltc_window x ltc_window window of cells around their peak; the one-radiance
-                     term covers the rest of the LCD where it is on; 5 + ltc_window^2 more floats
-                     per texel.
+    ltc_grid         (integer, default 4 for "ltc-grid", 16 for "ltc-cells") the lobe is
+                     interpolated bilinearly from its values at the (ltc_grid + 1)^2 vertices of a
+                     grid over the LCD (it must divide the LCD's cell counts); "ltc-cells" stores
+                     (ltc_grid + 1)^2 floats per texel, "ltc-grid" unrolls that many lobe
+                     evaluations into its closed-form kernel (its tracing time grows with them:
+                     meant for ltc_grid <= 8).
+    ltc_cells_min_roughness (float, default 0.2) below this roughness the lobe is too narrow for
+                     the grid: "ltc-cells" and "ltc-grid" use the window there (down to
+                     ltc_window_min_roughness), "ltc-cells" also the one-radiance term of "ltc"
+                     outside the window; lobes below both are Monte Carlo's.
+    ltc_window       (integer, default 8; 0: off) "ltc-cells", "ltc-grid": lobes narrower than
+                     that (down to ltc_window_min_roughness) are known exactly under every cell of
+                     a ltc_window x ltc_window window of cells around their peak; "ltc-cells"
+                     stores 5 + ltc_window^2 more floats per texel, "ltc-grid" runs a loop over
+                     the window's cells for the texels that have one.
     ltc_window_min_roughness (float, default 0.02) below this roughness the window term is off too
                      (the near-mirror caveat of ltc_min_roughness).
 
@@ -83,7 +88,7 @@ import drjit as dr
 import mitsuba as mi
 
 from . import plugin_class
-from .lcd_integrals import ViewFrame, ltc_density, ltc_lookup
+from .lcd_integrals import ViewFrame, grid_cell_form_factors, ltc_density, ltc_lookup, warp
 
 SAMPLERS = ("independent", "stratified")
 CONTROL_VARIATES = ("none", "diffuse", "ltc", "ltc-cells", "ltc-grid")
@@ -299,90 +304,210 @@ class _ControlVariate:
 
 class _GridControlVariate(_ControlVariate):
     """"ltc-grid": the per-cell terms of "ltc-cells" (specular where roughness >=
-    ``ltc_cells_min_roughness``, diffuse everywhere; no one-radiance or window term), with all of
-    their per-texel work in this integrator's kernels: the maps, the view frame, the LTC lookup
-    (:func:`~mitsvbrdf_plugins.lcd_integrals.ltc_lookup`), S and kd (1 - ks), the lobe values at the
-    grid vertices and K_p, one lane per texel (:meth:`closed_form`); the sample lanes then take the
-    lobe values and weights from that result (:meth:`use`) for the residual. torch supplies only the
-    patterns' grid radiance T_{p,v}, a fixed linear map of the pattern
-    (:func:`mitsvbrdf.render.control_variate.control_variate`), and the LTC table.
+    ``ltc_cells_min_roughness``, diffuse everywhere) and its window term (narrower lobes down to
+    ``ltc_window_min_roughness``, under the w x w cells around their peak; no one-radiance term
+    outside the window), with all of their per-texel work in this integrator's kernels: the maps,
+    the view frame, the LTC lookup (:func:`~mitsvbrdf_plugins.lcd_integrals.ltc_lookup`), S and
+    kd (1 - ks), the lobe values at the grid vertices, the window's place, its cells' form factors
+    E_c and omega_c, and K_p, one lane per texel (:meth:`closed_form`); the sample lanes then take
+    the lobe values and weights from that result (:meth:`use`) for the residual. torch supplies
+    only the patterns' grid radiance T_{p,v}, a fixed linear map of the pattern, the cells'
+    radiance for the window (:func:`mitsvbrdf.render.control_variate.control_variate`) and the
+    LTC table.
 
-    Args: the ``lcd`` emitter; ``grid_rad`` the flat (B, P, (k + 1)^2, 3) T_{p,v}; ``table`` the
-    flat (n, n, 6) LTC table, n = ``table_size``; k = ``grid``; the lanes' material ``b`` and
-    ``texel`` index; hw = H W; the count P; ``min_cos_view`` and ``min_roughness`` (the
-    integrator's ltc_min_cos_view and ltc_cells_min_roughness)."""
+    Args: the ``lcd`` emitter; ``grid_rad`` the flat (B, P, (k + 1)^2, 3) T_{p,v}; ``cell_rad`` the
+    flat (B, P, h w, 3) cell radiance times the decay's position factor at the cell's centre (None
+    without a window); ``table`` the flat (n, n, 6) LTC table, n = ``table_size``; k = ``grid``;
+    w = ``window`` (0: off); the lanes' material ``b`` and ``texel`` index; hw = H W; the count P;
+    ``min_cos_view``, ``min_roughness`` and ``window_min_roughness`` (the integrator's
+    ltc_min_cos_view, ltc_cells_min_roughness and ltc_window_min_roughness)."""
 
-    def __init__(self, lcd, grid_rad, table, table_size: int, grid: int, b, texel, hw: int, count: int,
-                 min_cos_view: float, min_roughness: float):
+    #: per-texel floats of the window after S and kd (1 - ks): S, first row and column, the view
+    #: frame's x and n, the M^-1 entries, and the warped LCD's c0, cu, cv (:meth:`_window_closed_form`)
+    WINDOW_FIELDS = 3 + 2 + 3 + 3 + 4 + 9
+
+    def __init__(self, lcd, grid_rad, cell_rad, table, table_size: int, grid: int, window: int, b, texel, hw: int,
+                 count: int, min_cos_view: float, min_roughness: float, window_min_roughness: float):
         self.lcd, self.count, self.b, self.grid = lcd, count, b, grid
-        self.grid_rad, self.table, self.table_size = grid_rad, table, table_size
+        self.grid_rad, self.cell_rad, self.table, self.table_size = grid_rad, cell_rad, table, table_size
         self.min_cos_view, self.min_roughness = min_cos_view, min_roughness
-        self.cells, self.window = True, 0
+        self.window_min_roughness = window_min_roughness
+        self.cells, self.window = True, window
         self.to_world = mi.Transform4f(lcd.to_world())
         self.lcd_n = lcd.normal()
         self.texel_lane = b * hw + texel
 
-    def _vertex_lobes(self, si, u, v):
-        """q_v = D_ltc(w_v) G_v d_v and q^d_v = (n . w_v)^+ / pi G_v d_v at the LCD
-        point (u, v): w_v the direction to it, G_v = cos(theta_lcd) / r^2, d_v the decay's cosine
-        factor (:func:`mitsvbrdf.render.control_variate._grid_geometry` and ``_lobe_grid``)."""
-        rel = self._point(u, v) - si.p
-        dist2 = dr.maximum(dr.squared_norm(rel), 1e-30)
-        d = rel * dr.rsqrt(dist2)
-        cos_emit = -dr.dot(d, self.lcd_n)
-        g = dr.maximum(cos_emit, 0.0) / dist2
+    def _lcd_in_view(self, si):
+        """The LCD seen from the shading point in the view frame: the point (u, v) lies along
+        ``r0 + u ru + v rv`` (affine in u, v; a rotation keeps lengths), and ``plane`` = the
+        shading point's signed distance from the LCD's plane along its normal (the same for every
+        LCD point, since ru and rv lie in the plane)."""
+        origin = self._point(0.0, 0.0)
+        to_origin = origin - si.p
+        r0, ru, rv = (self.frame.to_view(si.to_local(e)) for e in
+                      (to_origin, self._point(1.0, 0.0) - origin, self._point(0.0, 1.0) - origin))
+        return r0, ru, rv, -dr.dot(to_origin, self.lcd_n)
+
+    def _vertex_lobes(self, lcd_view, u: float, v: float):
+        """q_v = D_ltc(w_v) G_v d_v and q^d_v = (n . w_v)^+ / pi G_v d_v at the LCD point (u, v)
+        (:meth:`_lcd_in_view`): w_v the direction to it, G_v = cos(theta_lcd) / r^2, d_v the
+        decay's cosine factor (:func:`mitsvbrdf.render.control_variate._grid_geometry` and
+        ``_lobe_grid``)."""
+        r0, ru, rv, plane = lcd_view
+        rel = r0 + u * ru + v * rv
+        inv = dr.rsqrt(dr.maximum(dr.squared_norm(rel), 1e-30))
+        cos_emit = plane * inv
+        g = dr.maximum(cos_emit, 0.0) * inv * inv
         if self.lcd.has_decay:  # at the centre: the cosine factor alone
             g = g * self.lcd._factor(mi.Point2f(0.5, 0.5), cos_emit)
-        w = si.to_local(d)
-        return ltc_density(self.m, self.frame.to_view(w)) * g, dr.maximum(dr.dot(self.frame.n, w), 0.0) * (g / dr.pi)
+        w = rel * inv
+        return ltc_density(self.m, w) * g, dr.maximum(w.z, 0.0) * (g / dr.pi)
 
     def closed_form(self, si, active, bsdf) -> tuple:
         """(One lane per texel, materials outermost.) The per-texel values the residual needs,
         ``[q_0 .. q_{V-1}, q^d_0 .. q^d_{V-1}, S (3), kd (1 - ks) (3)]`` (V = (k + 1)^2 vertices,
-        row-major; Floats), and per pattern K_p (Color3f) at each lane's texel:
-        ``S sum_v q_v T_{p,v} + kd (1 - ks) sum_v q^d_v T_{p,v}``; 0 where ``active`` is false."""
+        row-major; Floats), with a window then :attr:`WINDOW_FIELDS`, and per pattern K_p (Color3f) at each lane's texel:
+        ``S sum_v q_v T_{p,v} + kd (1 - ks) sum_v q^d_v T_{p,v}`` (plus the window's
+        ``S_w sum_c omega_c E_c R_{p,c}``); 0 where ``active`` is false."""
         n, kd, ks, r = bsdf.maps(si, active)
         self.frame = ViewFrame(n, si.wi)
         cos_v = self.frame.cos_v
         self.m, a_one, a_s = ltc_lookup(self.table, self.table_size, r, cos_v)
         ok = active & (cos_v > 0) & (si.wi.z > 0)  # the shading normal and the sample face the camera
-        spec = ok & (cos_v >= self.min_cos_view) & (r >= self.min_roughness)
-        self.s_cells = dr.select(spec, ks * (a_one - a_s) + a_s, 0.0)
+        fits = ok & (cos_v >= self.min_cos_view)
+        s_all = ks * (a_one - a_s) + a_s
+        self.s_cells = dr.select(fits & (r >= self.min_roughness), s_all, 0.0)
         self.kd_cells = dr.select(ok, kd * (1.0 - ks), 0.0)
         k, side = self.grid, self.grid + 1
         V = side * side
         base = self.b * (self.count * V)
         q_all, qd_all = [], []
         out = [mi.Color3f(0.0) for _ in range(self.count)]
+        lcd_view = self._lcd_in_view(si)
         # Unrolled: as a symbolic loop over the vertices it traced faster but ran 2-3x as long (k = 4).
         for row in range(side):
             for col in range(side):
-                q, qd = self._vertex_lobes(si, mi.Float(col / k), mi.Float(row / k))
+                q, qd = self._vertex_lobes(lcd_view, col / k, row / k)
                 q_all.append(dr.select(active, q, 0.0))
                 qd_all.append(dr.select(active, qd, 0.0))
                 lobe = self.s_cells * q + self.kd_cells * qd
                 for p in range(self.count):  # T_{p,v}: the 3 channels side by side
                     out[p] += lobe * dr.gather(mi.Color3f, self.grid_rad, base + (p * V + row * side + col))
         weights = [self.s_cells.x, self.s_cells.y, self.s_cells.z, self.kd_cells.x, self.kd_cells.y, self.kd_cells.z]
+        if self.window:
+            on = fits & (r >= self.window_min_roughness) & (r < self.min_roughness)
+            weights += self._window_closed_form(si, lcd_view, on, dr.select(on, s_all, 0.0), out)
         return q_all + qd_all + weights, [dr.select(active, o, 0.0) for o in out]
+
+    def _peak_uv(self, si):
+        """Where the LTC lobe's peak direction M z meets the LCD's plane (its centre, (0.5, 0.5),
+        where it points away), as :func:`mitsvbrdf.render.control_variate._peak_uv`; detached (the
+        window's place is piecewise constant in the maps)."""
+        a, b, _, d = (dr.detach(e) for e in self.m)
+        # For M^-1 = [[a, 0, b], [0, c, 0], [d, 0, 1]], M z runs along (-b, 0, a) / (a - b d).
+        sign = dr.select(a - b * d < 0.0, -1.0, 1.0)
+        peak = si.to_world(dr.normalize(dr.detach(self.frame.x) * (-b * sign) + dr.detach(self.frame.n) * (a * sign)))
+        origin = self._point(0.0, 0.0)
+        edge_u, edge_v = self._point(1.0, 0.0) - origin, self._point(0.0, 1.0) - origin
+        denom = dr.dot(peak, self.lcd_n)
+        front = denom < -1e-6
+        rel = si.p + dr.dot(origin - si.p, self.lcd_n) / dr.select(front, denom, -1.0) * peak - origin
+        return (dr.select(front, dr.dot(rel, edge_u) / dr.squared_norm(edge_u), 0.5),
+                dr.select(front, dr.dot(rel, edge_v) / dr.squared_norm(edge_v), 0.5))
+
+    def _cell_omega(self, si, c0, cu, cv, row, col):
+        """omega_c of the LCD cell (row, col) (Floats): the decay's cosine factor at its centre, 0
+        unless its four corners lie above the warped horizon (z > 0; the warped LCD point (u, v)
+        is c0 + u cu + v cv); also the corners, rows of two Vector3f."""
+        h, wc = self.lcd.h, self.lcd.w
+        corners = [[c0 + ((col + dj) / wc) * cu + ((row + di) / h) * cv for dj in (0, 1)] for di in (0, 1)]
+        up = (corners[0][0].z > 0) & (corners[0][1].z > 0) & (corners[1][0].z > 0) & (corners[1][1].z > 0)
+        omega = dr.select(up, 1.0, 0.0)
+        if self.lcd.has_decay:  # the cosine factor at the cell's centre
+            centre = self._point((col + 0.5) / wc, (row + 0.5) / h)
+            omega = omega * self.lcd._factor(mi.Point2f(0.5, 0.5), dr.dot(dr.normalize(si.p - centre), self.lcd_n))
+        return omega, corners
+
+    def _window_closed_form(self, si, lcd_view, on, s_win, out) -> list:
+        """The window term where ``on``: adds ``S_w sum_c omega_c E_c R_{p,c}`` to K_p (``out``)
+        and returns its per-texel floats (:attr:`WINDOW_FIELDS`). E_c is the form factor of cell
+        c warped by M^-1 into the LTC's frame, omega_c (:meth:`_cell_omega`) the decay's cosine
+        factor at its centre, 0 unless all four corners lie above the warped horizon (module
+        docstring of :mod:`mitsvbrdf.render.control_variate`)."""
+        w, h, wc = self.window, self.lcd.h, self.lcd.w
+        u, v = self._peak_uv(si)
+        # Centred on the peak, inside the LCD; texels without a window get one off it.
+        off = -float(max(h, wc))
+        row0 = dr.select(on, dr.clip(dr.round(v * h - w / 2), 0, h - w), off)
+        col0 = dr.select(on, dr.clip(dr.round(u * wc - w / 2), 0, wc - w), off)
+        c0, cu, cv = (warp(self.m, e) for e in lcd_view[:3])  # the warped LCD: affine in (u, v)
+        first = self.b * self.count
+
+        def cell_term(i, known):
+            row, col = row0 + mi.Float(i // w), col0 + mi.Float(i % w)
+            omega, corners = self._cell_omega(si, c0, cu, cv, row, col)
+            weight = s_win * (omega * grid_cell_form_factors(corners)[0][0])
+            cell = first * (h * wc) + mi.UInt32(row * wc + col)
+            return i + 1, [k + weight * dr.gather(mi.Color3f, self.cell_rad, cell + p * (h * wc))
+                           for p, k in enumerate(known)]
+
+        # A symbolic loop over the w^2 cells: traced once (unrolled, w = 8 traced 10^4 operations
+        # per render, whether any texel had a window or not), and only texels with a window run it.
+        _, known = dr.while_loop((mi.UInt32(0), [mi.Color3f(0.0) for _ in range(self.count)]),
+                                 lambda i, known: on & (i < w * w), cell_term, max_iterations=w * w,
+                                 label="ltc-grid window")
+        for p in range(self.count):
+            out[p] += known[p]
+        fields = [dr.select(on, e, 0.0) for vec in (self.frame.x, self.frame.n) for e in (vec.x, vec.y, vec.z)]
+        fields += [dr.select(on, e, 0.0) for e in self.m]
+        fields += [dr.select(on, e, 0.0) for vec in (c0, cu, cv) for e in (vec.x, vec.y, vec.z)]
+        return [s_win.x, s_win.y, s_win.z, row0, col0, *fields]
 
     def use(self, per_texel):
         """(Sample lanes.) Take the lobe values and weights from ``per_texel``, the concatenation
-        of :meth:`closed_form`'s first result (layout (2 V + 6, B H W))."""
+        of :meth:`closed_form`'s first result (layout (fields, B H W))."""
         V = (self.grid + 1) ** 2
-        self.lobe_grid, self.lobe_step = per_texel, dr.width(per_texel) // (2 * V + 6)
+        fields = 2 * V + 6 + (self.WINDOW_FIELDS if self.window else 0)
+        step = dr.width(per_texel) // fields
+        self.lobe_grid, self.lobe_step = per_texel, step
         self.lobe_base = self.texel_lane
 
-        def weight(j):
-            return dr.gather(mi.Float, per_texel, self.texel_lane + (2 * V + j) * self.lobe_step)
+        def field(j):
+            return dr.gather(mi.Float, per_texel, self.texel_lane + (2 * V + j) * step)
 
-        self.s_cells = mi.Color3f(*(weight(j) for j in range(3)))
-        self.kd_cells = mi.Color3f(*(weight(j) for j in range(3, 6)))
+        self.s_cells = mi.Color3f(*(field(j) for j in range(3)))
+        self.kd_cells = mi.Color3f(*(field(j) for j in range(3, 6)))
+        if self.window:  # its first row and column here; the rest only for directions inside it
+            self.win_row, self.win_col = mi.Int32(field(9)), mi.Int32(field(10))
+            self.window_base, self.window_step = self.texel_lane + (2 * V + 6) * step, step
         return self
 
+    def _window_lobe(self, si, wo, cell, hit):
+        """S_w omega_c D_ltc(wo) (Color3f) for a direction that meets the LCD in ``cell`` (:meth:`_cell`)
+        inside the texel's window, else 0 (never for texels without one: their window lies off the
+        LCD); the window's fields gathered for those directions alone (most directions of most
+        texels miss it)."""
+        w = self.window
+        row, col = cell
+        i, j = mi.Int32(row) - self.win_row, mi.Int32(col) - self.win_col
+        inside = hit & (i >= 0) & (i < w) & (j >= 0) & (j < w)
+
+        def lobe(wo, row, col):
+            f = [dr.gather(mi.Float, self.lobe_grid, self.window_base + j * self.window_step)
+                 for j in (0, 1, 2, *range(5, self.WINDOW_FIELDS))]
+            frame = ViewFrame.of_axes(mi.Vector3f(*f[3:6]), mi.Vector3f(*f[6:9]))
+            c0, cu, cv = (mi.Vector3f(*f[13 + 3 * a:16 + 3 * a]) for a in range(3))
+            omega, _ = self._cell_omega(si, c0, cu, cv, row, col)
+            return mi.Color3f(*f[0:3]) * (omega * ltc_density(tuple(f[9:13]), frame.to_view(wo)))
+
+        # A symbolic branch: packets of directions that all miss the window skip it.
+        return dr.if_stmt((wo, row, col), inside, lobe, lambda wo, row, col: mi.Color3f(0.0), label="window lobe")
+
     def pointwise(self, si, wo, uv, hit) -> list:
-        """Per pattern, g_p(wo) (Color3f): the per-cell terms alone."""
-        return [dr.select(hit, c, 0.0) for c in self._cells(si, uv, self._cell(uv), hit, None)]
+        """Per pattern, g_p(wo) (Color3f): the per-cell terms, and inside the window its term."""
+        cell = self._cell(uv)
+        window_lobe = self._window_lobe(si, wo, cell, hit) if self.window else None
+        return [dr.select(hit, c, 0.0) for c in self._cells(si, uv, cell, hit, window_lobe)]
 
 
 class _PatternLight:
@@ -478,7 +603,8 @@ class ImportanceIntegrator(mi.SamplingIntegrator):
         self.cv_blocks = int(props.get("cv_blocks", 8))
         self.ltc_min_roughness = float(props.get("ltc_min_roughness", 0.1))
         self.ltc_min_cos_view = float(props.get("ltc_min_cos_view", 0.1))
-        self.ltc_grid = int(props.get("ltc_grid", 16))
+        # each mode's own default: "ltc-grid" unrolls the grid into its kernel, "ltc-cells" stores it
+        self.ltc_grid = int(props.get("ltc_grid", 4 if self.control_variate == "ltc-grid" else 16))
         self.ltc_cells_min_roughness = float(props.get("ltc_cells_min_roughness", 0.2))
         self.ltc_window = int(props.get("ltc_window", 8))
         self.ltc_window_min_roughness = float(props.get("ltc_window_min_roughness", 0.02))
@@ -622,9 +748,10 @@ class ImportanceIntegrator(mi.SamplingIntegrator):
         rest of the batch. ``seed`` may be an opaque ``mi.UInt32`` (no recompilation).
 
         ``control``: None (plain Monte Carlo), or ``(block_radiance, coefficients, lobe_grid,
-        grid_radiance, ltc_table)``, the flat arrays of
+        grid_radiance, ltc_table, cell_radiance)``, the flat arrays of
         :class:`mitsvbrdf.render.control_variate.ControlVariate` (lobe_grid None unless
-        "ltc-cells"; in "ltc-grid" only grid_radiance and ltc_table are used); then the result is
+        "ltc-cells"; in "ltc-grid" only the last three are used, cell_radiance only with a
+        window); then the result is
         only the residual's estimate, to which the caller adds the control variate's ``known``,
         except in "ltc-grid", where these kernels add K_p themselves (one lane per texel).
         """
@@ -675,20 +802,23 @@ class ImportanceIntegrator(mi.SamplingIntegrator):
         hw = H * W
         t = dr.arange(mi.UInt32, batch * hw)
         tb = t // hw
-        grid_rad, table = control[3], control[4]
+        grid_rad, table, cell_rad = control[3], control[4], control[5]
         size = int(round((dr.width(table) // 6) ** 0.5))
 
         def variate(lane_b, lane_texel):
-            return _GridControlVariate(lcd, grid_rad, table, size, self.ltc_grid, lane_b, lane_texel, hw, P,
-                                       self.ltc_min_cos_view, self.ltc_cells_min_roughness)
+            return _GridControlVariate(lcd, grid_rad, cell_rad, table, size, self.ltc_grid, self.ltc_window, lane_b,
+                                       lane_texel, hw, P, self.ltc_min_cos_view, self.ltc_cells_min_roughness,
+                                       self.ltc_window_min_roughness)
 
         si_t, ok_t = self._texel_interactions(scene, shape, t - tb * hw, tb, H, W, batch)
         per_texel, known = variate(tb, t - tb * hw).closed_form(si_t, ok_t, shape.bsdf())
         known = [c for val in known for c in (val.x, val.y, val.z)]
-        # One kernel; its results concatenated (scattered into one array instead, each scatter
-        # became a kernel of its own).
+        # One kernel that also concatenates its results: concatenated after evaluation, the copy
+        # was a second kernel (a quarter of this one's time); scattered into one array, each
+        # scatter became a kernel of its own.
+        per_texel = dr.concat(per_texel)
         dr.eval(per_texel, known)
-        return variate(b, texel).use(dr.concat(per_texel)), known
+        return variate(b, texel).use(per_texel), known
 
     def to_string(self):
         return (f"ImportanceIntegrator[sampler={self.sampler}, control_variate={self.control_variate}, "

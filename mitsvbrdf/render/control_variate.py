@@ -61,16 +61,24 @@ disagree. Two terms (either may be switched off by the scene file's integrator o
   residual is then ``R_c (f cos d - S omega_c D_ltc)`` inside the window (the fit's error) and the
   tail ``f R cos d`` outside it.
 
-* the per-cell terms alone, in the integrator's kernels ("ltc-grid"): the per-cell specular term
-  where roughness >= ``ltc_cells_min_roughness`` (no one-radiance term, no window: narrower lobes
-  are left to Monte Carlo) and the per-cell diffuse term everywhere, as in "ltc-cells", but with
-  all of the per-texel work (the LTC lookup, S, the lobe grid q_v, q^d_v, K_p) done by the
-  integrator, one lane per texel (plugins/importance_integrator.py, ``_GridControlVariate``). This
-  module gives it only the patterns' grid radiance T_{p,v} (:attr:`ControlVariate.grid_radiance`,
-  the fixed linear map of the pattern above) and the LTC table. At 64 px, B = 4, "ltc-cells"
-  spends about half of a 4-spp render in torch's closed form (docs/benchmarks/cv_cost.md): the
-  per-texel work there is many small tensor operations, each a pass over memory, where one kernel
-  does it in one pass. ``known`` is None: the integrator's result is the whole estimate.
+* the per-cell terms in the integrator's kernels ("ltc-grid"): the per-cell
+  specular term where roughness >= ``ltc_cells_min_roughness`` and the per-cell diffuse term
+  everywhere, as in "ltc-cells", and with ``ltc_window`` = w > 0 the window term where
+  ``ltc_window_min_roughness`` <= roughness < ``ltc_cells_min_roughness``, but without the
+  one-radiance term around it (a wider lobe's tail outside the window is left to Monte Carlo) and
+  with all of the per-texel work (the LTC lookup, S, the lobe grid q_v, q^d_v, the window's warped
+  cells, K_p) done by the integrator, one lane per texel (plugins/importance_integrator.py,
+  ``_GridControlVariate``; the window's w^2 cells in a loop, not unrolled, so its kernel compiles
+  once whatever w). This module gives it only the patterns' grid radiance T_{p,v}
+  (:attr:`ControlVariate.grid_radiance`, the fixed linear map of the pattern above), each cell's
+  radiance for the window (:attr:`ControlVariate.cell_radiance`) and the LTC table. At 64 px,
+  B = 4, "ltc-cells" spends about half of a 4-spp render in torch's closed form
+  (docs/benchmarks/cv_cost.md): the per-texel work there is many small tensor operations, each a
+  pass over memory, where one kernel does it in one pass. ``known`` is None: the integrator's
+  result is the whole estimate. Its grid defaults to k = 4 (the kernel unrolls (k + 1)^2 lobe
+  evaluations per texel; k = 8 halves the mid-roughness noise of a textured material under
+  ColorGrad, 0.139 -> 0.093 at 4 spp, for about 1.5x the time: ``test_the_default_estimator_...``
+  in tests/test_integrator_options.py, docs/benchmarks/cv_cost.md).
 
 Rejected alternatives (tried during development, not kept as options): the closed form inside
 the plugin, as one Dr.Jit kernel with the K x K block polygons unrolled, took the LLVM backend
@@ -138,6 +146,9 @@ class ControlVariate:
             channels of a vertex side by side, for the integrator's gathers); else None.
         ltc_table: mode "ltc-grid": the LTC table (n, n, 6) (:attr:`.ltc_fit.LtcTable.grid`) for the
             integrator's own lookup; else None.
+        cell_radiance: mode "ltc-grid" with a window: (B, P, h w, 3) each cell's radiance times the
+            decay's position factor at its centre, cells row-major (for the window's part of K_p);
+            else None.
     """
 
     block_radiance: Tensor | None
@@ -146,6 +157,7 @@ class ControlVariate:
     lobe_grid: Tensor | None = None
     grid_radiance: Tensor | None = None
     ltc_table: Tensor | None = None
+    cell_radiance: Tensor | None = None
 
 
 def _block_average(rad: Tensor, k: int) -> Tensor:
@@ -310,15 +322,20 @@ class _LobeWindow:
     s: Tensor
 
 
+def _check_window(rig: Rig, w: int) -> None:
+    """Raises ValueError unless a w x w window fits on the rig's LCD."""
+    h, wc = rig.lcd_cells
+    if not 1 <= w <= min(h, wc):
+        raise ValueError(f"ltc_window = {w} must lie in [1, {min(h, wc)}] (the LCD has {h} x {wc} cells)")
+
+
 def _lobe_window(rig: Rig, w: int, frame: Tensor, m_inv: Tensor, x: Tensor, peak_uv: Tensor,
                  where: Tensor, one_radiance: Tensor, s: Tensor) -> _LobeWindow:
     """The window term's material part (module docstring) where ``where`` (B N,) is true: frames
     and M^-1 (B N, 3, 3), texel positions ``x`` (N, 3), ``peak_uv`` (B N, 2) where the lobe's peak
     meets the LCD, ``one_radiance`` (B N,) where the one-radiance term is on, S (B N, 3). In chunks
     of texels, as :func:`_lobe_grid` (at 128 px and w = 8 in one pass it took three times as long)."""
-    h, wc = rig.lcd_cells
-    if not 1 <= w <= min(h, wc):
-        raise ValueError(f"ltc_window = {w} must lie in [1, {min(h, wc)}] (the LCD has {h} x {wc} cells)")
+    _check_window(rig, w)
     idx = where.nonzero().squeeze(1)
     dev, dt = frame.device, frame.dtype
     step = max(1, CHUNK_ELEMENTS // (3 * (w + 1) ** 2))
@@ -604,9 +621,13 @@ def control_variate(svbrdf, patterns: Tensor, rig: Rig, *, mode: str = "ltc-cell
     P = patterns.shape[-4]
     rad = rig.material_radiance(patterns, B, dev, dt).reshape(B, P, 3, h, w)
     if mode == "ltc-grid":  # the rest is the integrator's
+        cells = None
+        if ltc_window:
+            _check_window(rig, ltc_window)
+            cells = (rad * _position_factor(rig).to(dev, dt)).reshape(B, P, 3, h * w).transpose(-1, -2)
         return ControlVariate(block_radiance=None, texel=None, known=None,
                               grid_radiance=_grid_radiance(rig, ltc_grid, rad).transpose(-1, -2),
-                              ltc_table=default_table().grid.to(dev, dt))
+                              ltc_table=default_table().grid.to(dev, dt), cell_radiance=cells)
     options = (mode, blocks, ltc_min_roughness, ltc_min_cos_view, ltc_grid, ltc_cells_min_roughness, ltc_window,
                ltc_window_min_roughness)
     terms = LAST_MATERIALS.terms_for(svbrdf, rig, options, lambda: _material_terms(svbrdf, rig, *options))

@@ -125,7 +125,8 @@ def render_mitsuba(svbrdf, patterns: Tensor, rig: Rig, *, spp: int = 64, seed: i
     cv = integrator_control_variate(svbrdf, patterns, rig, integrator)
 
     @dr.wrap(source="torch", target="drjit")
-    def batch(normal, diffuse, roughness, specular, drive, seed_value, block_rad, coeffs, lobe_grid, grid_rad, table):
+    def batch(normal, diffuse, roughness, specular, drive, seed_value, block_rad, coeffs, lobe_grid, grid_rad, table,
+              cell_rad):
         params["sample.bsdf.normal"] = normal
         params["sample.bsdf.diffuse"] = diffuse
         params["sample.bsdf.roughness"] = roughness
@@ -135,7 +136,8 @@ def render_mitsuba(svbrdf, patterns: Tensor, rig: Rig, *, spp: int = 64, seed: i
         control = None if cv is None else (block_rad.array, coeffs.array,
                                            None if cv.lobe_grid is None else lobe_grid.array,
                                            None if cv.grid_radiance is None else grid_rad.array,
-                                           None if cv.ltc_table is None else table.array)
+                                           None if cv.ltc_table is None else table.array,
+                                           None if cv.cell_radiance is None else cell_rad.array)
         return integrator.render_texels(scene, (H, W), spp, seed_value, batch=B, control=control)
 
     def stacked(t):  # (B, C, H, W) -> (B * H, W, C): the plugin's layout, materials along rows
@@ -147,7 +149,7 @@ def render_mitsuba(svbrdf, patterns: Tensor, rig: Rig, *, spp: int = 64, seed: i
                    stacked(svbrdf.specular), patterns.reshape(B * P, *patterns.shape[2:]).contiguous(),
                    dr.opaque(mi.UInt32, seed),
                    *(empty if t is None else t.contiguous() for t in
-                     ((None,) * 5 if cv is None else
-                      (cv.block_radiance, cv.texel, cv.lobe_grid, cv.grid_radiance, cv.ltc_table))))
+                     ((None,) * 6 if cv is None else
+                      (cv.block_radiance, cv.texel, cv.lobe_grid, cv.grid_radiance, cv.ltc_table, cv.cell_radiance))))
     images = images.reshape(B, P, 3, H, W)
     return images if cv is None or cv.known is None else images + cv.known

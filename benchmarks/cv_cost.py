@@ -30,7 +30,7 @@ from mitsvbrdf import patterns as pt
 from mitsvbrdf.data import procedural
 from mitsvbrdf.render.control_variate import LAST_MATERIALS
 from mitsvbrdf.render.mitsuba import integrator_control_variate, load_scene, variant_for
-from estimators import ESTIMATORS, estimator_rigs
+from estimators import ESTIMATORS, estimator_names, estimator_rigs
 from report import OtherLoad, interleaved_seconds, median_seconds, write_report
 
 ROOT = Path(__file__).resolve().parent.parent
@@ -50,14 +50,18 @@ def main() -> None:
     ap.add_argument("--size", type=int, default=64)
     ap.add_argument("--spp", type=int, default=4)
     ap.add_argument("--repeats", type=int, default=7)
+    ap.add_argument("--estimators", default="", help=f"comma-separated subset of: {', '.join(ESTIMATORS)} "
+                                                     "(default: all; plain is always timed)")
+    ap.add_argument("--name", default="", help="suffix of the report's files (default: none, cv_cost.md)")
     ap.add_argument("--out", type=Path, default=ROOT / "docs" / "benchmarks")
     args = ap.parse_args()
+    names = estimator_names(args.estimators, always=("plain",))
     m = procedural.generate(args.n, size=args.size, seed=123)
     pats = pt.monograd()
     load = OtherLoad()
     rows = []
     with tempfile.TemporaryDirectory() as work:
-        rigs = estimator_rigs(Path(work))
+        rigs = estimator_rigs(Path(work), names)
         totals = interleaved_seconds({name: (lambda rig=rig: ms.render(m, pats, rig, method="mitsuba", spp=args.spp,
                                                                        seed=1)) for name, rig in rigs.items()},
                                      args.repeats, before=LAST_MATERIALS.clear)
@@ -71,8 +75,9 @@ def main() -> None:
     plain = next(r["seconds"] for r in rows if r["estimator"] == "plain")
     for r in rows:
         r["ratio_to_plain"] = round(r["seconds"] / plain, 2)
-    text = (f"Command: `python benchmarks/cv_cost.py" + ("" if (args.n, args.size, args.spp) == (4, 64, 4) else
-                                                         f" --n {args.n} --size {args.size} --spp {args.spp}") + "`\n\n"
+    flags = ("" if (args.n, args.size, args.spp) == (4, 64, 4) else f" --n {args.n} --size {args.size} --spp {args.spp}")
+    flags += (f" --estimators {args.estimators}" if args.estimators else "") + (f" --name {args.name}" if args.name else "")
+    text = (f"Command: `python benchmarks/cv_cost.py{flags}`\n\n"
             f"`generate({args.n}, size={args.size}, seed=123)` under MonoGrad at {args.spp} spp, "
             f"{torch.get_num_threads()} threads; median of {args.repeats} renders in interleaved rounds "
             "(material cache cleared). 'closed form' is torch's part; ltc-grid's per-texel closed form runs in "
@@ -83,7 +88,7 @@ def main() -> None:
             "\n".join(f"| {r['estimator']} | {r['seconds']} | {r['closed_form_s']} | {r['monte_carlo_s']} | "
                       f"{r['ratio_to_plain']} |" for r in rows) + "\n")
     print(text)
-    write_report(args.out, "cv_cost", "Closed form against Monte Carlo: the cost of each estimator", "cv_cost.py",
+    write_report(args.out, "cv_cost" + (f"_{args.name}" if args.name else ""), "Closed form against Monte Carlo: the cost of each estimator", "cv_cost.py",
                  text, rows)
 
 

@@ -24,7 +24,7 @@ ESTIMATORS = {"plain": {"sampler": "independent", "control_variate": "none"},
               "ltc-cv-16-blocks": {"control_variate": "ltc", "cv_blocks": 16},
               "ltc-cv-pattern-light": {"control_variate": "ltc", "light_sampling": "patterns"},
               DEFAULT: {"control_variate": "ltc-cells", "ltc_grid": 16, "ltc_cells_min_roughness": 0.2,
-                        "ltc_window": 8, "ltc_window_min_roughness": 0.02},
+                            "ltc_window": 8, "ltc_window_min_roughness": 0.02},
               "ltc-cells-no-window": {"control_variate": "ltc-cells", "ltc_grid": 16, "ltc_cells_min_roughness": 0.2,
                                       "ltc_window": 0},
               "ltc-cells-window-4": {"control_variate": "ltc-cells", "ltc_window": 4},
@@ -34,8 +34,30 @@ ESTIMATORS = {"plain": {"sampler": "independent", "control_variate": "none"},
                                           "ltc_window": 8, "ltc_window_min_roughness": 0.02},
               "ltc-cells-32-grid": {"control_variate": "ltc-cells", "ltc_grid": 32, "ltc_cells_min_roughness": 0.1,
                                     "ltc_window": 0},
-              "ltc-grid": {"control_variate": "ltc-grid", "ltc_grid": 4, "ltc_cells_min_roughness": 0.2},
-              "ltc-grid-8": {"control_variate": "ltc-grid", "ltc_grid": 8, "ltc_cells_min_roughness": 0.2}}
+              "ltc-grid": {"control_variate": "ltc-grid", "ltc_grid": 4, "ltc_cells_min_roughness": 0.2,
+                           "ltc_window": 0},
+              "ltc-grid-8": {"control_variate": "ltc-grid", "ltc_grid": 8, "ltc_cells_min_roughness": 0.2,
+                             "ltc_window": 0},
+              "ltc-grid-window-4": {"control_variate": "ltc-grid", "ltc_grid": 4, "ltc_cells_min_roughness": 0.2,
+                                    "ltc_window": 4, "ltc_window_min_roughness": 0.02},
+              "ltc-grid-8-window-8": {"control_variate": "ltc-grid", "ltc_grid": 8, "ltc_cells_min_roughness": 0.2,
+                                      "ltc_window": 8, "ltc_window_min_roughness": 0.02},
+              "ltc-grid-window-8": {"control_variate": "ltc-grid", "ltc_grid": 4, "ltc_cells_min_roughness": 0.2,
+                        "ltc_window": 8, "ltc_window_min_roughness": 0.02}}
+
+
+def estimator_names(spec: str, always: tuple[str, ...] = ()) -> list[str]:
+    """The estimators of a comma-separated ``spec`` ("" : all of them) in :data:`ESTIMATORS`' order,
+    with ``always`` added.
+
+    Raises:
+        SystemExit: a name that is not an estimator (the command-line error of the benchmarks).
+    """
+    asked = [n for n in spec.split(",") if n]
+    unknown = [n for n in asked if n not in ESTIMATORS]
+    if unknown:
+        raise SystemExit(f"unknown estimators {', '.join(unknown)}; known: {', '.join(ESTIMATORS)}")
+    return [n for n in ESTIMATORS if not asked or n in asked or n in always]
 
 
 def estimator_rigs(work: Path, names=None) -> dict[str, ms.Rig]:

@@ -14,7 +14,7 @@ import mitsvbrdf as ms
 from mitsvbrdf.scene_xml import write_integrator_options
 from mitsvbrdf.rig import DEFAULT_SCENE
 
-DEFAULT = "ltc-cells"
+DEFAULT = "ltc-grid-window-8"
 #: name -> integrator options ("plain" is the integrator before variance reduction)
 ESTIMATORS = {"plain": {"sampler": "independent", "control_variate": "none"},
               "stratified": {"sampler": "stratified", "control_variate": "none"},
@@ -23,7 +23,7 @@ ESTIMATORS = {"plain": {"sampler": "independent", "control_variate": "none"},
               "ltc-cv-4-blocks": {"control_variate": "ltc", "cv_blocks": 4},
               "ltc-cv-16-blocks": {"control_variate": "ltc", "cv_blocks": 16},
               "ltc-cv-pattern-light": {"control_variate": "ltc", "light_sampling": "patterns"},
-              DEFAULT: {"control_variate": "ltc-cells", "ltc_grid": 16, "ltc_cells_min_roughness": 0.2,
+              "ltc-cells": {"control_variate": "ltc-cells", "ltc_grid": 16, "ltc_cells_min_roughness": 0.2,
                             "ltc_window": 8, "ltc_window_min_roughness": 0.02},
               "ltc-cells-no-window": {"control_variate": "ltc-cells", "ltc_grid": 16, "ltc_cells_min_roughness": 0.2,
                                       "ltc_window": 0},
@@ -42,7 +42,7 @@ ESTIMATORS = {"plain": {"sampler": "independent", "control_variate": "none"},
                                     "ltc_window": 4, "ltc_window_min_roughness": 0.02},
               "ltc-grid-8-window-8": {"control_variate": "ltc-grid", "ltc_grid": 8, "ltc_cells_min_roughness": 0.2,
                                       "ltc_window": 8, "ltc_window_min_roughness": 0.02},
-              "ltc-grid-window-8": {"control_variate": "ltc-grid", "ltc_grid": 4, "ltc_cells_min_roughness": 0.2,
+              DEFAULT: {"control_variate": "ltc-grid", "ltc_grid": 4, "ltc_cells_min_roughness": 0.2,
                         "ltc_window": 8, "ltc_window_min_roughness": 0.02}}
 
 

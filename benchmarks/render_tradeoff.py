@@ -25,9 +25,11 @@ estimator's worst 4-spp error (the goal: <= 0.05).
 Estimators (:data:`ESTIMATORS`, integrator options in a copy of the scene file): "plain" (the
 integrator before control variates: independent samples, no control variate), "stratified",
 "diffuse-cv", "ltc-cv" (one radiance per texel for the specular lobe), "ltc-cv" with 4 and 16
-blocks and with the LCD sampled by the patterns' brightness, and "ltc-cells" (the default: both
-lobes under every cell's radiance, lobe grid 16, narrow lobes under an 8 x 8 window of cells)
-without the window, with a 4 x 4 one, with grids 8 (with and without the window) and 32.
+blocks and with the LCD sampled by the patterns' brightness, "ltc-cells" (both lobes under every
+cell's radiance, lobe grid 16, narrow lobes under an 8 x 8 window of cells) without the window,
+with a 4 x 4 one, with grids 8 (with and without the window) and 32, and "ltc-grid" (the per-cell
+terms in the integrator's kernels) on grids 4 and 8 without a window, and with 4 x 4 and 8 x 8
+windows ("ltc-grid-window-8", grid 4: the default).
 Prints tables, writes CSV + markdown, and plots of error vs. time and vs. spp.
 """
 
@@ -45,7 +47,7 @@ import mitsvbrdf as ms
 from mitsvbrdf.demo import DEFAULT_MATERIAL
 from mitsvbrdf.patterns import colorgrad, monograd, random, step_edges
 from mitsvbrdf.render.control_variate import LAST_MATERIALS
-from estimators import DEFAULT, ESTIMATORS, estimator_rigs
+from estimators import DEFAULT, ESTIMATORS, estimator_names, estimator_rigs
 from report import OtherLoad, write_report
 
 ROOT = Path(__file__).resolve().parent.parent
@@ -292,10 +294,7 @@ def main() -> None:
     ap.add_argument("--name", default="", help="suffix of a --procedural-only or --roughness-only report's files")
     ap.add_argument("--out", type=Path, default=ROOT / "docs" / "benchmarks")
     args = ap.parse_args()
-    names = [n for n in args.estimators.split(",") if n] or list(ESTIMATORS)
-    unknown = [n for n in names if n not in ESTIMATORS]
-    if unknown:
-        ap.error(f"unknown estimators {', '.join(unknown)}; known: {', '.join(ESTIMATORS)}")
+    names = estimator_names(args.estimators)
     if args.procedural_only and not args.name:
         ap.error("--procedural-only writes render_tradeoff_procedural_NAME: give --name")
     if args.roughness_only and not args.name:

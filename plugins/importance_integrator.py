@@ -479,7 +479,7 @@ class _GridControlVariate(_ControlVariate):
         self.kd_cells = mi.Color3f(*(field(j) for j in range(3, 6)))
         if self.window:  # its first row and column here; the rest only for directions inside it
             self.win_row, self.win_col = mi.Int32(field(9)), mi.Int32(field(10))
-            self.window_base, self.window_step = self.texel_lane + (2 * V + 6) * step, step
+            self.window_base = self.texel_lane + (2 * V + 6) * step
         return self
 
     def _window_lobe(self, si, wo, cell, hit):
@@ -493,7 +493,7 @@ class _GridControlVariate(_ControlVariate):
         inside = hit & (i >= 0) & (i < w) & (j >= 0) & (j < w)
 
         def lobe(wo, row, col):
-            f = [dr.gather(mi.Float, self.lobe_grid, self.window_base + j * self.window_step)
+            f = [dr.gather(mi.Float, self.lobe_grid, self.window_base + j * self.lobe_step)
                  for j in (0, 1, 2, *range(5, self.WINDOW_FIELDS))]
             frame = ViewFrame.of_axes(mi.Vector3f(*f[3:6]), mi.Vector3f(*f[6:9]))
             c0, cu, cv = (mi.Vector3f(*f[13 + 3 * a:16 + 3 * a]) for a in range(3))

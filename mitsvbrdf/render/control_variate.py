@@ -76,9 +76,9 @@ disagree. Two terms (either may be switched off by the scene file's integrator o
   (docs/benchmarks/cv_cost.md): the per-texel work there is many small tensor operations, each a
   pass over memory, where one kernel does it in one pass. ``known`` is None: the integrator's
   result is the whole estimate. Its grid defaults to k = 4 (the kernel unrolls (k + 1)^2 lobe
-  evaluations per texel; k = 8 halves the mid-roughness noise of a textured material under
-  ColorGrad, 0.139 -> 0.093 at 4 spp, for about 1.5x the time: ``test_the_default_estimator_...``
-  in tests/test_integrator_options.py, docs/benchmarks/cv_cost.md).
+  evaluations per texel; k = 8 leaves a third of its noise at roughness 0.3, 0.035 against 0.11
+  at 4 spp, for 1.62x plain's time against 1.41x: docs/benchmarks/render_tradeoff_roughness_window.md,
+  docs/benchmarks/cv_cost.md).
 
 Rejected alternatives (tried during development, not kept as options): the closed form inside
 the plugin, as one Dr.Jit kernel with the K x K block polygons unrolled, took the LLVM backend

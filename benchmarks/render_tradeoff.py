@@ -19,8 +19,11 @@ error.
 
 Study 2 (procedural): ``generate(4, size=64, seed=123)`` under MonoGrad, ColorGrad and the shipped
 networks' adaptive patterns (L_0 + the 4 predicted for each material); relative RMSE per material
-and pattern group for every estimator and spp, and time per batch. It prints the default
-estimator's worst 4-spp error (the goal: <= 0.05).
+and pattern group for every estimator and spp, and time per batch under MonoGrad: the median of
+``--time-rounds`` renders taken in interleaved rounds, one of every estimator and spp per round (as
+benchmarks/cv_cost.py times them: taken one estimator after another, the later ones ran slower).
+It prints the default estimator's worst 4-spp error (the goal: <= 0.05) and its time against
+plain's at 4 spp (the goal: <= 1.5x).
 
 Estimators (:data:`ESTIMATORS`, integrator options in a copy of the scene file): "plain" (the
 integrator before control variates: independent samples, no control variate), "stratified",
@@ -48,7 +51,7 @@ from mitsvbrdf.demo import DEFAULT_MATERIAL
 from mitsvbrdf.patterns import colorgrad, monograd, random, step_edges
 from mitsvbrdf.render.control_variate import LAST_MATERIALS
 from estimators import DEFAULT, ESTIMATORS, estimator_names, estimator_rigs
-from report import OtherLoad, write_report
+from report import OtherLoad, interleaved_seconds, write_report
 
 ROOT = Path(__file__).resolve().parent.parent
 SPPS = (1, 4, 16, 64, 256)
@@ -158,8 +161,9 @@ def at_time(rows: list[dict], est: str, key: str, seconds: float, time_column: s
     return pts[-1][1]
 
 
-def procedural_study(rigs: dict[str, ms.Rig], n: int, size: int, spps) -> tuple[list[dict], list[str]]:
-    """Study 2: per estimator and spp, relative RMSE per (pattern group, material) and time."""
+def procedural_study(rigs: dict[str, ms.Rig], n: int, size: int, spps, rounds: int = 7) -> tuple[list[dict], list[str]]:
+    """Study 2: per estimator and spp, relative RMSE per (pattern group, material) and time (the
+    median of ``rounds`` interleaved rounds)."""
     load = OtherLoad()
     from mitsvbrdf.data.procedural import generate
     from mitsvbrdf.acquisition import DEFAULT_NETWORKS, load_adaptive
@@ -171,14 +175,17 @@ def procedural_study(rigs: dict[str, ms.Rig], n: int, size: int, spps) -> tuple[
     acq = acq if isinstance(acq, list) else [acq]
     groups = {"monograd": monograd(), "colorgrad": colorgrad(), "adaptive": torch.stack([a.patterns for a in acq])}
     refs = {g: ms.render(mats, p, base) for g, p in groups.items()}
+    def fn(m, p, s, rig, spp):
+        return ms.render(m, p, rig, method="mitsuba", spp=spp, seed=s)
+
+    seconds = interleaved_seconds({(est, spp): (lambda rig=rig, spp=spp: fn(mats, groups["monograd"], 1, rig, spp))
+                                   for est, rig in rigs.items() for spp in spps}, rounds, before=LAST_MATERIALS.clear)
     rows = []
     for est, rig in rigs.items():
         for spp in spps:
-            def fn(m, p, s, rig=rig, spp=spp):
-                return ms.render(m, p, rig, method="mitsuba", spp=spp, seed=s)
-            row = {"estimator": est, "spp": spp, "seconds_batch": round(timed(fn, mats, groups["monograd"], 1), 4)}
+            row = {"estimator": est, "spp": spp, "seconds_batch": round(seconds[(est, spp)], 4)}
             for g, p in groups.items():
-                img = fn(mats, p, 7)
+                img = fn(mats, p, 7, rig, spp)
                 for b in range(n):
                     row[f"{g}/{b}"] = round(rel_rmse(img[b], refs[g][b]), 5)
             row["worst"] = max(v for k, v in row.items() if "/" in k)
@@ -189,8 +196,9 @@ def procedural_study(rigs: dict[str, ms.Rig], n: int, size: int, spps) -> tuple[
     lines = [f"## Procedural materials: every estimator", "",
              f"`generate({n}, size={size}, seed=123)` under MonoGrad, ColorGrad and the shipped networks' adaptive "
              f"patterns (L_0 + 4 predicted per material, from a reference-rendered I_0); relative RMSE against the "
-             f"reference per pattern group / material; time for the batch of {n} materials under 5 patterns "
-             f"({torch.get_num_threads()} threads). {load.sentence()}", "",
+             f"reference per pattern group / material; time for the batch of {n} materials under MonoGrad "
+             f"({torch.get_num_threads()} threads; median of {rounds} renders in interleaved rounds of every estimator "
+             f"and spp, material cache cleared). {load.sentence()}", "",
              "| estimator | spp | time (s) | median | worst | " + " | ".join(keys) + " |",
              "|---|---:|---:|---:|---:|" + "---:|" * len(keys)]
     lines += [f"| {r['estimator']} | {r['spp']} | {r['seconds_batch']} | {r['median']:.4f} | {r['worst']:.4f} | "
@@ -285,6 +293,7 @@ def main() -> None:
     ap.add_argument("--time-size", type=int, default=128)
     ap.add_argument("--procedural-n", type=int, default=4)
     ap.add_argument("--procedural-size", type=int, default=64)
+    ap.add_argument("--time-rounds", type=int, default=7, help="interleaved timing rounds of the procedural study")
     ap.add_argument("--skip-ltc-exact", action="store_true", help="leave out LTC-exact (by far the slowest method at 128 px)")
     ap.add_argument("--quick", action="store_true")
     ap.add_argument("--procedural-only", action="store_true", help="study 2 alone (needs --name)")
@@ -320,7 +329,7 @@ def main() -> None:
     rows, keys, lines = roughness_study(rigs, args, cases, spps, [DEFAULT], load)
 
     with torch.no_grad():
-        proc_rows, proc_lines = procedural_study(rigs, args.procedural_n, args.procedural_size, spps)
+        proc_rows, proc_lines = procedural_study(rigs, args.procedural_n, args.procedural_size, spps, args.time_rounds)
     lines += [""] + proc_lines
 
     bias = uniform_lcd_bias(rig, size=8 if not args.quick else 4)
@@ -350,7 +359,7 @@ def main() -> None:
 def procedural_only(rigs: dict[str, ms.Rig], args, spps) -> None:
     """Study 2 for the estimators of ``rigs`` alone, as render_tradeoff_procedural_NAME."""
     with torch.no_grad():
-        rows, lines = procedural_study(rigs, args.procedural_n, args.procedural_size, spps)
+        rows, lines = procedural_study(rigs, args.procedural_n, args.procedural_size, spps, args.time_rounds)
     command = " ".join(["benchmarks/render_tradeoff.py", "--procedural-only", f"--estimators {','.join(rigs)}",
                         f"--name {args.name}", f"--procedural-n {args.procedural_n}",
                         f"--procedural-size {args.procedural_size}"])

@@ -13,7 +13,8 @@ ks = 0.3, for r in {0.01, 0.05, 0.1, 0.3, 0.6, 1.0}, plus a near-grazing case (r
 normal tilted 70 degrees away from the camera's azimuth). Patterns: MonoGrad, 5 random, 4 step
 edges. Error: relative RMSE of each method's images against the reference renderer (default
 settings) at ``--error-size``; time: one material under 5 patterns at ``--time-size`` on this
-machine's CPU. For every roughness it also states whether the default estimator, at the CPU time
+machine's CPU, the median of ``--time-rounds`` renders taken in interleaved rounds of every method
+(LTC-exact, which takes seconds, one render). For every roughness it also states whether the default estimator, at the CPU time
 of LTC-prefiltered (interpolated on its error-vs-time curve), has at most half LTC-prefiltered's
 error.
 
@@ -228,13 +229,17 @@ def roughness_study(rigs: dict[str, ms.Rig], args, cases, spps, judged: list[str
         for r, tilt in cases:
             m = material(args.error_size, r, tilt)
             refs[(r, tilt)] = (m, ms.render(m, pats, rig))
-        for name, fn in methods(rigs, spps):  # time: one material under 5 patterns
-            if name == "ltc-exact" and (args.skip_ltc_exact or args.quick):
-                continue
+        timed_methods = [(name, fn) for name, fn in methods(rigs, spps)
+                         if not (name == "ltc-exact" and (args.skip_ltc_exact or args.quick))]
+        on = {column: material(args.time_size, r_time) for column, r_time in TIME_ROUGHNESS.items()}
+        # time: one material under 5 patterns, in interleaved rounds (LTC-exact, 10^2 times slower, once)
+        seconds = interleaved_seconds({(name, column): (lambda fn=fn, m=m: fn(m, pats[:5], 1))
+                                       for name, fn in timed_methods if name != "ltc-exact"
+                                       for column, m in on.items()}, args.time_rounds, before=LAST_MATERIALS.clear)
+        for name, fn in timed_methods:
             row = {"method": name}
-            for column, r_time in TIME_ROUGHNESS.items():
-                seconds = timed(fn, material(args.time_size, r_time), pats[:5], 1, repeats=1 if name == "ltc-exact" else 3)
-                row[column] = round(seconds, 4)
+            for column, m in on.items():
+                row[column] = round(seconds[(name, column)] if name != "ltc-exact" else timed(fn, m, pats[:5], 1, repeats=1), 4)
             errs = {key: rel_rmse(fn(m, pats, 2), ref) for key, (m, ref) in refs.items()}
             row.update({f"r={r}" + (f",tilt={tilt:g}" if tilt else ""): round(e, 5) for (r, tilt), e in errs.items()})
             rows.append(row)
@@ -245,7 +250,8 @@ def roughness_study(rigs: dict[str, ms.Rig], args, cases, spps, judged: list[str
              f"Relative RMSE against the reference renderer ({args.error_size}x{args.error_size} px, MonoGrad + "
              f"5 random + 4 step-edge patterns, ks = 0.3, the example's normal map; 'tilt=70' replaces it by normals "
              f"tilted 70 degrees, near-grazing views) and CPU time for one {args.time_size}x{args.time_size} material "
-             f"under 5 patterns ({torch.get_num_threads()} threads), at roughness 0.3 and, for the narrow lobes "
+             f"under 5 patterns ({torch.get_num_threads()} threads; median of {args.time_rounds} renders in interleaved "
+             f"rounds of every method, LTC-exact one render), at roughness 0.3 and, for the narrow lobes "
              f"(r < {NARROW_BELOW:g}: the window term's range), at 0.1. Mitsuba rows are estimator-spp. "
              f"{load.sentence()}", "",
              "| method | time (s) | time, r=0.1 (s) | " + " | ".join(keys) + " |", "|---|---:|---:|" + "---:|" * len(keys)]
@@ -293,7 +299,7 @@ def main() -> None:
     ap.add_argument("--time-size", type=int, default=128)
     ap.add_argument("--procedural-n", type=int, default=4)
     ap.add_argument("--procedural-size", type=int, default=64)
-    ap.add_argument("--time-rounds", type=int, default=7, help="interleaved timing rounds of the procedural study")
+    ap.add_argument("--time-rounds", type=int, default=7, help="interleaved timing rounds of both studies")
     ap.add_argument("--skip-ltc-exact", action="store_true", help="leave out LTC-exact (by far the slowest method at 128 px)")
     ap.add_argument("--quick", action="store_true")
     ap.add_argument("--procedural-only", action="store_true", help="study 2 alone (needs --name)")

@@ -670,14 +670,16 @@ class ImportanceIntegrator(mi.SamplingIntegrator):
                              f"found {len(ems)} among its emitters ({_kinds(scene.emitters())})")
         return ems[0]
 
-    def direct(self, scene, sampler, si, active, first=0, count=None, cv=None, light=None) -> list:
+    def direct(self, scene, sampler, si, active, first=0, count=None, cv=None, light=None, bsdf=None) -> list:
         """Outgoing radiance towards ``si.wi`` for patterns first .. first + count - 1 of the
         ``lcd`` emitter (default: all): a list of Color3f, all from the same light samples. With a
         control variate ``cv``, only the residual f L e - g (the caller adds g's integral).
-        ``light`` samples the LCD (default: the emitter's uniform sampling)."""
+        ``light`` samples the LCD (default: the emitter's uniform sampling). ``bsdf``: the BSDF
+        every active lane's ``si`` lies on, when the caller knows it (default: ``si.bsdf()``, a
+        virtual call that Dr.Jit traces once for every BSDF of every scene loaded in the process)."""
         lcd = self.lcd(scene)
         light = lcd if light is None else light
-        bsdf = si.bsdf()
+        bsdf = si.bsdf() if bsdf is None else bsdf
         ctx = mi.BSDFContext()
         P = lcd.pattern_count if count is None else count
         out = [mi.Color3f(0.0) for _ in range(P)]
@@ -798,7 +800,7 @@ class ImportanceIntegrator(mi.SamplingIntegrator):
             cv = _ControlVariate(lcd, control[0], control[1], self.cv_blocks, b, texel, H * W, P, n, si.wi,
                                  control[2], self.ltc_grid, self.ltc_window)
         light = _PatternLight(lcd, batch, P, self.uniform_share, b) if self.light_sampling == "patterns" else None
-        values = self.direct(scene, sampler, si, ok, first=b * P, count=P, cv=cv, light=light)
+        values = self.direct(scene, sampler, si, ok, first=b * P, count=P, cv=cv, light=light, bsdf=shape.bsdf())
         # One kernel for all 3P channels; reduced one by one they would each re-trace the paths.
         dr.eval(values)
         chans = [dr.block_sum(c, spp) / spp for val in values for c in (val.x, val.y, val.z)]

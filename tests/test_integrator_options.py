@@ -316,6 +316,27 @@ def test_new_data_and_seed_reuse_the_compiled_kernels(rigs, option):
     assert hist and all(k["cache_hit"] for k in hist)
 
 
+def test_a_render_traces_its_bsdf_once_however_many_scenes_the_process_holds(rigs, monkeypatch):
+    """render_texels calls the sample's own BSDF: the virtual ``si.bsdf()`` call was traced once
+    for every BSDF of every scene loaded in the process (a benchmark holds 18 scenes)."""
+    import mitsvbrdf_plugins
+
+    m, p = textured_material(8, seed=1), pt.random(n=2, seed=1)
+    for display in DISPLAY:  # three scenes loaded at least
+        ms.render(m, p, rigs[("plain", display)], method="mitsuba", spp=2, seed=0)
+    bsdf_class = mitsvbrdf_plugins.plugin_class("svbrdf_ggx", "llvm_ad_rgb")
+    traced = []
+    eval_pdf = bsdf_class.eval_pdf
+
+    def counted(self, *args, **kwargs):
+        traced.append(self)
+        return eval_pdf(self, *args, **kwargs)
+
+    monkeypatch.setattr(bsdf_class, "eval_pdf", counted)
+    ms.render(m, p, rigs[("plain", "plain-display")], method="mitsuba", spp=2, seed=0)
+    assert len(traced) == 1
+
+
 # ---- "ltc-grid": the per-cell terms in the integrator's kernels --------------------------------
 
 #: "ltc-cells" reduced to what "ltc-grid" computes: the per-cell terms from roughness 0.2 and,

@@ -315,7 +315,8 @@ class _GridControlVariate(_ControlVariate):
     radiance for the window (:func:`mitsvbrdf.render.control_variate.control_variate`) and the
     LTC table.
 
-    Args: the ``lcd`` emitter; ``grid_rad`` the flat (B, P, (k + 1)^2, 3) T_{p,v}; ``cell_rad`` the
+    Args: the ``lcd`` emitter; ``grid_rad`` the flat (B, (k + 1)^2, width) T_{p,v}, a vertex's 3 P
+    values zero-padded to a power of two (:func:`mitsvbrdf.render.control_variate.vertex_packet_width`); ``cell_rad`` the
     flat (B, P, h w, 3) cell radiance times the decay's position factor at the cell's centre (None
     without a window); ``table`` the flat (n, n, 6) LTC table, n = ``table_size``; k = ``grid``;
     w = ``window`` (0: off); the lanes' material ``b`` and ``texel`` index; hw = H W; the count P;
@@ -328,7 +329,7 @@ class _GridControlVariate(_ControlVariate):
 
     def __init__(self, lcd, grid_rad, cell_rad, table, table_size: int, grid: int, window: int, b, texel, hw: int,
                  count: int, min_cos_view: float, min_roughness: float, window_min_roughness: float):
-        self.lcd, self.count, self.b, self.grid = lcd, count, b, grid
+        self.lcd, self.count, self.b, self.grid, self.hw = lcd, count, b, grid, hw
         self.grid_rad, self.cell_rad, self.table, self.table_size = grid_rad, cell_rad, table, table_size
         self.min_cos_view, self.min_roughness = min_cos_view, min_roughness
         self.window_min_roughness = window_min_roughness
@@ -382,8 +383,8 @@ class _GridControlVariate(_ControlVariate):
         V = side * side
         q_all, qd_all = [], []
         lcd_view = self._lcd_in_view(si)
-        packets, width = self._vertex_packets(V)
-        lanes = dr.width(self.b)
+        lanes = dr.width(self.b)  # one per texel: B H W
+        width = dr.width(self.grid_rad) * self.hw // (lanes * V)
         along_q = along_qd = 0.0  # sum_v q_v T_{., v} and sum_v q^d_v T_{., v}: 3 P entries (+ padding)
         # Unrolled: as a symbolic loop over the vertices it traced faster but ran 2-3x as long (k = 4).
         for row in range(side):
@@ -391,7 +392,9 @@ class _GridControlVariate(_ControlVariate):
                 q, qd = self._vertex_lobes(lcd_view, col / k, row / k)
                 q_all.append(dr.select(active, q, 0.0))
                 qd_all.append(dr.select(active, qd, 0.0))
-                t = dr.gather(mi.ArrayXf, packets, self.b * V + (row * side + col), shape=(width, lanes))
+                # packet loads: the vertex's 3 P values lie side by side (the gathers of 3 P
+                # scalars were two thirds of this kernel's time, k = 4, P = 5, llvm)
+                t = dr.gather(mi.ArrayXf, self.grid_rad, self.b * V + (row * side + col), shape=(width, lanes))
                 along_q, along_qd = dr.fma(t, q, along_q), dr.fma(t, qd, along_qd)
         out = [self.s_cells * mi.Color3f(*along_q[3 * p:3 * p + 3]) +
                self.kd_cells * mi.Color3f(*along_qd[3 * p:3 * p + 3]) for p in range(self.count)]
@@ -400,22 +403,6 @@ class _GridControlVariate(_ControlVariate):
             on = fits & (r >= self.window_min_roughness) & (r < self.min_roughness)
             weights += self._window_closed_form(si, lcd_view, on, dr.select(on, s_all, 0.0), out)
         return q_all + qd_all + weights, [dr.select(active, o, 0.0) for o in out]
-
-    def _vertex_packets(self, V: int):
-        """T_{p,v} regrouped per (material, vertex): the 3 P values of a vertex contiguous, zero
-        padded to ``width``, the next power of two; the flat (B, V, width) array and width. A
-        texel then reads a vertex's radiance as packet loads instead of 3 P gathers (the gathers
-        were two thirds of the per-texel kernel's time, k = 4, P = 5, llvm)."""
-        P = self.count
-        width = 1 << (3 * P - 1).bit_length()
-        B = dr.width(self.grid_rad) // (P * V * 3)
-        i = dr.arange(mi.UInt32, B * V * width)
-        bv = i // width
-        c = i - bv * width
-        mat = bv // V
-        p = c // 3
-        src = ((mat * P + p) * V + (bv - mat * V)) * 3 + (c - p * 3)
-        return dr.gather(mi.Float, self.grid_rad, src, c < 3 * P), width
 
     def _peak_uv(self, si):
         """Where the LTC lobe's peak direction M z meets the LCD's plane (its centre, (0.5, 0.5),

@@ -142,8 +142,9 @@ class ControlVariate:
         known: (B, P, 3, H, W) K_p(x); None in mode "ltc-grid", whose integrator computes it.
         lobe_grid: mode "ltc-cells": (B, H * W, 2, (k + 1)^2) q_v and q^d_v, vertices row-major;
             else None.
-        grid_radiance: mode "ltc-grid": (B, P, (k + 1)^2, 3) T_{p,v}, vertices row-major (the three
-            channels of a vertex side by side, for the integrator's gathers); else None.
+        grid_radiance: mode "ltc-grid": (B, (k + 1)^2, width) T_{p,v}, vertices row-major, a
+            vertex's 3 P values (pattern-major, the three channels side by side) zero-padded to
+            :func:`vertex_packet_width` (the integrator reads them as packet loads); else None.
         ltc_table: mode "ltc-grid": the LTC table (n, n, 6) (:attr:`.ltc_fit.LtcTable.grid`) for the
             integrator's own lookup; else None.
         cell_radiance: mode "ltc-grid" with a window: (B, P, h w, 3) each cell's radiance times the
@@ -283,6 +284,18 @@ def _grid_radiance(rig: Rig, k: int, rad: Tensor) -> Tensor:
     """T_{p,v} (B, P, 3, V) of the cell radiance ``rad`` (B, P, 3, h, w) without decay."""
     tv, tu, scale = (t.to(rad.device, rad.dtype) for t in _cell_weights(rig, k))
     return (tv @ (rad * scale) @ tu.T).flatten(-2)  # (B, P, 3, (k + 1)^2)
+
+
+def _vertex_radiance(rig: Rig, k: int, rad: Tensor) -> Tensor:
+    """T_{p,v} per vertex, (B, V, 3 P): the P patterns' three channels of a vertex side by side."""
+    B, P = rad.shape[:2]
+    return _grid_radiance(rig, k, rad).reshape(B, P * 3, -1).transpose(1, 2)
+
+
+def vertex_packet_width(count: int) -> int:
+    """The entries per vertex of :attr:`ControlVariate.grid_radiance`: 3 P rounded up to a power of
+    two, so that the integrator reads a vertex's radiance as packet loads."""
+    return 1 << (3 * count - 1).bit_length()
 
 
 @lru_cache(maxsize=8)
@@ -626,7 +639,8 @@ def control_variate(svbrdf, patterns: Tensor, rig: Rig, *, mode: str = "ltc-cell
             _check_window(rig, ltc_window)
             cells = (rad * _position_factor(rig).to(dev, dt)).reshape(B, P, 3, h * w).transpose(-1, -2)
         return ControlVariate(block_radiance=None, texel=None, known=None,
-                              grid_radiance=_grid_radiance(rig, ltc_grid, rad).transpose(-1, -2),
+                              grid_radiance=torch.nn.functional.pad(_vertex_radiance(rig, ltc_grid, rad),
+                                                                    (0, vertex_packet_width(P) - 3 * P)),
                               ltc_table=default_table().grid.to(dev, dt), cell_radiance=cells)
     options = (mode, blocks, ltc_min_roughness, ltc_min_cos_view, ltc_grid, ltc_cells_min_roughness, ltc_window,
                ltc_window_min_roughness)
@@ -640,7 +654,7 @@ def control_variate(svbrdf, patterns: Tensor, rig: Rig, *, mode: str = "ltc-cell
         known = terms.kdd[:, None] * known.permute(0, 2, 1, 3)  # (B, P, N, 3)
     spec = torch.zeros(B, N, P, 3, dtype=dt, device=dev)
     if terms.lobe_grid is not None:
-        t = _grid_radiance(rig, ltc_grid, rad).reshape(B, P * 3, -1).transpose(1, 2)  # (B, V, 3 P)
+        t = _vertex_radiance(rig, ltc_grid, rad)  # (B, V, 3 P)
         both = torch.bmm(terms.lobe_grid.reshape(B, 2 * N, -1), t).reshape(B, N, 2, P, 3)
         per_cell = terms.s_cells[:, :, None] * both[:, :, 0] + terms.kd_cells[:, :, None] * both[:, :, 1]
         known = known + per_cell.permute(0, 2, 1, 3)

@@ -16,9 +16,9 @@ runs in the integrator's kernels, that includes it). The ratio column is each es
 over "plain" (the integrator before variance reduction): issue 14 asks for at most 1.5 at 4 spp.
 The last two columns split the plugin's part further, from one more render with Dr.Jit's kernel
 history on: the execution time of its kernels with one lane per texel ("ltc-grid"'s closed form,
-and for every estimator the small ones that lay out the image) and with one lane per sample (the Monte Carlo estimate), as Dr.Jit measures them. The rest of a
-render is tracing the kernels in Python, assembling them (cached compilations are looked up by
-their code) and torch's part.
+and for every estimator the small ones that lay out the image) and with one lane per sample (the
+Monte Carlo estimate), as Dr.Jit measures them. The rest of a render is tracing the kernels in
+Python, assembling them (cached compilations are looked up by their code) and torch's part.
 Writes docs/benchmarks/cv_cost.md (+ CSV).
 """
 

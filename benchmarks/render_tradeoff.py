@@ -176,6 +176,7 @@ def procedural_study(rigs: dict[str, ms.Rig], n: int, size: int, spps, rounds: i
     acq = acq if isinstance(acq, list) else [acq]
     groups = {"monograd": monograd(), "colorgrad": colorgrad(), "adaptive": torch.stack([a.patterns for a in acq])}
     refs = {g: ms.render(mats, p, base) for g, p in groups.items()}
+
     def fn(m, p, s, rig, spp):
         return ms.render(m, p, rig, method="mitsuba", spp=spp, seed=s)
 

@@ -14,11 +14,12 @@ beside "plain" (a process's state drifts as renders of other estimators allocate
 render ("Monte Carlo and transfers") is the difference (for "ltc-grid", whose per-texel closed form
 runs in the integrator's kernels, that includes it). The ratio column is each estimator's time
 over "plain" (the integrator before variance reduction): issue 14 asks for at most 1.5 at 4 spp.
-The last two columns split the plugin's part further, from one more render with Dr.Jit's kernel
+The last three columns split the plugin's part further, from one more render with Dr.Jit's kernel
 history on: the execution time of its kernels with one lane per texel ("ltc-grid"'s closed form,
 and for every estimator the small ones that lay out the image) and with one lane per sample (the
-Monte Carlo estimate), as Dr.Jit measures them. The rest of a render is tracing the kernels in
-Python, assembling them (cached compilations are looked up by their code) and torch's part.
+Monte Carlo estimate), as Dr.Jit measures them, and the time Dr.Jit took to assemble the code of
+all its kernels (cached compilations are looked up by that code, so a render pays it every time).
+The rest of a render is tracing the kernels in Python, launching them and torch's part.
 Writes docs/benchmarks/cv_cost.md (+ CSV).
 """
 
@@ -50,9 +51,10 @@ def closed_form(m: ms.SVBRDF, pats: torch.Tensor, rig: ms.Rig):
     return lambda: integrator_control_variate(m, pats.expand(m.batch_size, *pats.shape), rig, integrator)
 
 
-def kernel_ms(render, texels: int, samples: int) -> tuple[float, float]:
+def kernel_ms(render, texels: int, samples: int) -> tuple[float, float, float]:
     """Execution time (ms) of the kernels one ``render()`` launches with one lane per texel and
-    with one lane per sample (Dr.Jit's kernel history; 0 where none ran)."""
+    with one lane per sample (0 where none ran), and the time spent assembling (and, on a cache
+    miss, compiling) all of its kernels (Dr.Jit's kernel history)."""
     dr.set_flag(dr.JitFlag.KernelHistory, True)
     try:
         render()
@@ -60,7 +62,8 @@ def kernel_ms(render, texels: int, samples: int) -> tuple[float, float]:
     finally:
         dr.set_flag(dr.JitFlag.KernelHistory, False)
     jit = [k for k in history if k["type"] == dr.KernelType.JIT]
-    return tuple(round(sum(k["execution_time"] for k in jit if k["size"] == n), 2) for n in (texels, samples))
+    run = tuple(round(sum(k["execution_time"] for k in jit if k["size"] == n), 2) for n in (texels, samples))
+    return (*run, round(sum(k["codegen_time"] + k["backend_time"] for k in jit), 2))
 
 
 def main() -> None:
@@ -89,11 +92,11 @@ def main() -> None:
             cf = closed_form(m, pats, rig)
             closed = median_seconds(cf, args.repeats, before=LAST_MATERIALS.clear) if cf is not None else 0.0
             LAST_MATERIALS.clear()
-            texel_ms, sample_ms = kernel_ms(lambda rig=rig: ms.render(m, pats, rig, method="mitsuba", spp=args.spp, seed=1),
+            texel_ms, sample_ms, assembly_ms = kernel_ms(lambda rig=rig: ms.render(m, pats, rig, method="mitsuba", spp=args.spp, seed=1),
                                             m.batch_size * args.size ** 2, m.batch_size * args.size ** 2 * args.spp)
             rows.append({"estimator": name, "seconds": round(total, 4), "closed_form_s": round(closed, 4),
                          "monte_carlo_s": round(max(total - closed, 0.0), 4), "texel_kernel_ms": texel_ms,
-                         "sample_kernel_ms": sample_ms})
+                         "sample_kernel_ms": sample_ms, "assembly_ms": assembly_ms})
             print(rows[-1], flush=True)
     plain = next(r["seconds"] for r in rows if r["estimator"] == "plain")
     for r in rows:
@@ -105,13 +108,14 @@ def main() -> None:
             f"{torch.get_num_threads()} threads; median of {args.repeats} renders in interleaved rounds "
             "(material cache cleared). 'closed form' is torch's part; ltc-grid's per-texel closed form runs in "
             "the integrator's kernels and counts in the next column, whose kernels' execution times, one lane "
-            "per texel and one per sample, the last two columns give (one render, Dr.Jit's kernel history). "
+            "per texel and one per sample, the next two columns give, and the last the time Dr.Jit spent "
+            "assembling the code of all its kernels (one render, Dr.Jit's kernel history). "
             f"{load.sentence()}\n\n"
             "| estimator | s / render | closed form (s) | Monte Carlo and transfers (s) | x plain "
-            "| per-texel kernels (ms) | per-sample kernels (ms) |\n"
-            "|---|---:|---:|---:|---:|---:|---:|\n" +
+            "| per-texel kernels (ms) | per-sample kernels (ms) | assembling kernels (ms) |\n"
+            "|---|---:|---:|---:|---:|---:|---:|---:|\n" +
             "\n".join(f"| {r['estimator']} | {r['seconds']} | {r['closed_form_s']} | {r['monte_carlo_s']} | "
-                      f"{r['ratio_to_plain']} | {r['texel_kernel_ms']} | {r['sample_kernel_ms']} |" for r in rows) + "\n")
+                      f"{r['ratio_to_plain']} | {r['texel_kernel_ms']} | {r['sample_kernel_ms']} | {r['assembly_ms']} |" for r in rows) + "\n")
     print(text)
     write_report(args.out, "cv_cost" + (f"_{args.name}" if args.name else ""), "Closed form against Monte Carlo: the cost of each estimator", "cv_cost.py",
                  text, rows)

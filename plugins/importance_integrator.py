@@ -688,10 +688,9 @@ class ImportanceIntegrator(mi.SamplingIntegrator):
         bs, _ = bsdf.sample(ctx, si, sampler.next_1d(active), sampler.next_2d(active), active)
         bs_ok = active & (bs.pdf > 0)
         d = dr.detach(si.to_world(bs.wo))
-        si_l = scene.ray_intersect(si.spawn_ray(d), bs_ok)
-        hit = bs_ok & si_l.is_valid() & (si_l.emitter(scene) == mi.EmitterPtr(lcd))
+        si_l, hit = self._intersect(scene, lcd.get_shape(), si.spawn_ray(d), bs_ok)
         f_b = bsdf.eval(ctx, si, dr.detach(bs.wo), hit)
-        ds_l = mi.DirectionSample3f(scene, si_l, si)
+        ds_l = self._direction_sample(si_l, si, lcd)
         em_pdf = light.pdf_direction(si, ds_l, hit)
         w_bs = mis_weight(bs.pdf, em_pdf)
         scale_b = w_bs / dr.maximum(dr.detach(bs.pdf), 1e-30)
@@ -729,6 +728,35 @@ class ImportanceIntegrator(mi.SamplingIntegrator):
         return shapes[0]
 
     @staticmethod
+    def _intersect(scene, shape, ray, active=True):
+        """The surface interaction of ``ray`` with ``shape``, as ``scene.ray_intersect`` computes
+        it, and where ``shape`` is the first surface the ray meets in ``scene`` (a mask).
+
+        ``scene.ray_intersect`` completes a hit with a virtual call on the shape hit, which
+        Dr.Jit traces once for every shape of every scene loaded in the process (with the 18
+        scenes of the estimator benchmarks, most of a 64 px render's time). Here the scene only
+        finds the first hit (``ray_intersect_preliminary``, no virtual call), ``shape`` computes
+        the interaction in one direct call, and the rest is what Mitsuba adds after its virtual
+        call (``SurfaceInteraction::finalize_surface_interaction``)."""
+        pi = scene.ray_intersect_preliminary(ray, False, active)
+        hit = active & pi.is_valid() & (pi.shape == mi.ShapePtr(shape))
+        si = shape.compute_surface_interaction(ray, pi, mi.RayFlags.All, hit)
+        si.time, si.wavelengths = ray.time, ray.wavelengths
+        si.initialize_sh_frame()
+        si.wi = dr.select(hit, si.to_local(-ray.d), -ray.d)
+        return si, hit
+
+    @staticmethod
+    def _direction_sample(si_l, si, lcd) -> mi.DirectionSample3f:
+        """``mi.DirectionSample3f(scene, si_l, si)`` for a hit ``si_l`` on the ``lcd``'s shape
+        seen from ``si``, with the emitter known (the constructor finds it by a virtual call on
+        the shape, traced like :meth:`_intersect`'s)."""
+        rel = si_l.p - si.p
+        dist = dr.norm(rel)
+        return mi.DirectionSample3f(si_l.p, si_l.sh_frame.n, si_l.uv, si_l.time, mi.Float(0.0), mi.Bool(False),
+                                    rel / dist, dist, mi.EmitterPtr(lcd))
+
+    @staticmethod
     def _texel_interactions(scene, shape, texel, b, H: int, W: int, batch: int):
         """Surface interactions at the centres of texels ``texel`` of materials ``b``, seen from
         the camera's centre of projection, with uv addressing material b's rows of the stacked maps."""
@@ -739,8 +767,7 @@ class ImportanceIntegrator(mi.SamplingIntegrator):
         v = 1.0 - (mi.Float(row) + 0.5) / H  # row 0 at the top (uv.y = 1)
         x = to_world @ mi.Point3f(2.0 * u - 1.0, 2.0 * v - 1.0, 0.0)
         ray = mi.Ray3f(mi.Point3f(cam), dr.normalize(x - mi.Point3f(cam)))
-        si = scene.ray_intersect(ray)
-        ok = si.is_valid() & (si.shape == mi.ShapePtr(shape))
+        si, ok = ImportanceIntegrator._intersect(scene, shape, ray)
         si.uv = mi.Point2f(si.uv.x, 1.0 - (mi.Float(b * H + row) + 0.5) / (batch * H))
         return si, ok
 

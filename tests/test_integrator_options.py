@@ -337,6 +337,105 @@ def test_a_render_traces_its_bsdf_once_however_many_scenes_the_process_holds(rig
     assert len(traced) == 1
 
 
+def _variables_traced(render, capfd) -> int:
+    """How many Dr.Jit variables ``render()`` creates (Dr.Jit's debug log, one line each; Mitsuba
+    routes it to standard output)."""
+    import drjit as dr
+
+    capfd.readouterr()
+    level = dr.log_level()
+    dr.set_log_level(dr.LogLevel.Debug)
+    try:
+        render()
+    finally:
+        dr.set_log_level(level)
+    log = capfd.readouterr()
+    return (log.out + log.err).count("jit_var_new(")
+
+
+def test_a_render_traces_as_much_however_many_scenes_the_process_holds(rigs, tmp_path, capfd):
+    """The integrator's rays find their surfaces without ``scene.ray_intersect``, whose virtual
+    call on the shape hit Dr.Jit traced once for every shape of every scene loaded (with the
+    benchmarks' 18 scenes, most of a 64 px render's time)."""
+    from mitsvbrdf.render.mitsuba import load_scene
+
+    m, p = textured_material(4, seed=1), pt.random(n=2, seed=1)
+    rig = rigs[("ltc-grid-window", "plain-display")]
+
+    def render():
+        ms.render(m, p, rig, method="mitsuba", spp=1, seed=0)
+
+    render()  # compiled, material terms cached
+    before = _variables_traced(render, capfd)
+    for i in range(3):
+        load_scene(str(scene_with(tmp_path / f"more-{i}.xml", OPTIONS["plain"])), "llvm_ad_rgb")
+    assert _variables_traced(render, capfd) == before
+
+
+def _scene_of(rig):
+    from mitsvbrdf.render.mitsuba import load_scene
+
+    mi, scene, _, integrator = load_scene(str(rig.source), "llvm_ad_rgb")
+    return mi, scene, integrator
+
+
+def _assert_same_interactions(mi, si, hit, ref, ref_hit):
+    """``si`` equals Mitsuba's ``ref`` (float32 rounding) where both hit; both hit the same lanes."""
+    np.testing.assert_array_equal(np.array(hit), np.array(ref_hit))
+    assert 0 < int(np.array(hit).sum()) < len(np.array(hit))  # hits and misses both tested
+    on = np.array(hit)
+    for name, get in (("p", lambda s: s.p), ("n", lambda s: s.n), ("uv", lambda s: s.uv), ("wi", lambda s: s.wi),
+                      ("frame s", lambda s: s.sh_frame.s), ("frame t", lambda s: s.sh_frame.t),
+                      ("frame n", lambda s: s.sh_frame.n)):
+        np.testing.assert_allclose(np.array(get(si))[:, on], np.array(get(ref))[:, on], rtol=1e-6, atol=1e-6,
+                                   err_msg=name)
+    np.testing.assert_allclose(np.array(si.t)[on], np.array(ref.t)[on], rtol=1e-6, err_msg="t")
+
+
+def test_the_texel_rays_meet_the_sample_where_mitsubas_ray_intersect_does(rigs):
+    """Camera rays to points on and beyond the sample: the same hits, points, frames and uv."""
+    mi, scene, integrator = _scene_of(rigs[("plain", "plain-display")])
+    import drjit as dr
+
+    shape = type(integrator)._sample_shape(scene)
+    g = np.linspace(-1.4, 1.4, 15, dtype=np.float32)
+    u, v = (mi.Float(a.ravel()) for a in np.meshgrid(g, g))
+    target = mi.traverse(shape)["to_world"] @ mi.Point3f(u, v, 0.0)
+    cam = mi.Point3f(scene.sensors()[0].world_transform() @ mi.ScalarPoint3f(0.0, 0.0, 0.0))
+    ray = mi.Ray3f(cam, dr.normalize(target - cam))
+    si, hit = type(integrator)._intersect(scene, shape, ray)
+    ref = scene.ray_intersect(ray)
+    _assert_same_interactions(mi, si, hit, ref, ref.is_valid() & (ref.shape == mi.ShapePtr(shape)))
+
+
+def test_the_lcd_rays_meet_the_lcd_and_sample_it_where_mitsubas_ray_intersect_does(rigs):
+    """Rays from the sample's centre to points on and beyond the LCD: the same hits, and the same
+    direction sample as ``mi.DirectionSample3f(scene, si, ref)``."""
+    mi, scene, integrator = _scene_of(rigs[("plain", "plain-display")])
+    import drjit as dr
+
+    lcd = integrator.lcd(scene)
+    g = np.linspace(-1.4, 1.4, 15, dtype=np.float32)
+    u, v = (mi.Float(a.ravel()) for a in np.meshgrid(g, g))
+    target = mi.Transform4f(lcd.to_world()) @ mi.Point3f(u, v, 0.0)
+    sample = type(integrator)._sample_shape(scene)
+    cam = mi.Point3f(scene.sensors()[0].world_transform() @ mi.ScalarPoint3f(0.0, 0.0, 0.0))
+    centre = mi.traverse(sample)["to_world"] @ mi.Point3f(0.0, 0.0, 0.0)
+    at = scene.ray_intersect(mi.Ray3f(cam, dr.normalize(centre - cam)))  # the shading point
+    ray = at.spawn_ray(dr.normalize(target - at.p))
+    si, hit = type(integrator)._intersect(scene, lcd.get_shape(), ray)
+    ref = scene.ray_intersect(ray)
+    ref_hit = ref.is_valid() & (ref.emitter(scene) == mi.EmitterPtr(lcd))
+    _assert_same_interactions(mi, si, hit, ref, ref_hit)
+    ds, ds_ref = type(integrator)._direction_sample(si, at, lcd), mi.DirectionSample3f(scene, ref, at)
+    on = np.array(hit)
+    for name in ("p", "n", "uv", "d"):
+        np.testing.assert_allclose(np.array(getattr(ds, name))[:, on], np.array(getattr(ds_ref, name))[:, on],
+                                   rtol=1e-6, atol=1e-6, err_msg=name)
+    np.testing.assert_allclose(np.array(ds.dist)[on], np.array(ds_ref.dist)[on], rtol=1e-6)
+    assert bool(np.all(np.array(ds.emitter == ds_ref.emitter)[on]))
+
+
 # ---- "ltc-grid": the per-cell terms in the integrator's kernels --------------------------------
 
 #: "ltc-cells" reduced to what "ltc-grid" computes: the per-cell terms from roughness 0.2 and,

@@ -373,13 +373,21 @@ def test_a_render_traces_as_much_however_many_scenes_the_process_holds(rigs, tmp
 
 
 def _scene_of(rig):
+    """Mitsuba, the loaded scene, its integrator and the camera's centre of projection."""
     from mitsvbrdf.render.mitsuba import load_scene
 
     mi, scene, _, integrator = load_scene(str(rig.source), "llvm_ad_rgb")
-    return mi, scene, integrator
+    return mi, scene, integrator, mi.Point3f(scene.sensors()[0].world_transform() @ mi.ScalarPoint3f(0.0, 0.0, 0.0))
 
 
-def _assert_same_interactions(mi, si, hit, ref, ref_hit):
+def _on_and_beyond(mi, to_world):
+    """World points of a 15 x 15 grid over a rectangle (local [-1, 1]^2) and 40% beyond its edges."""
+    g = np.linspace(-1.4, 1.4, 15, dtype=np.float32)
+    u, v = (mi.Float(a.ravel()) for a in np.meshgrid(g, g))
+    return to_world @ mi.Point3f(u, v, 0.0)
+
+
+def _assert_same_interactions(si, hit, ref, ref_hit):
     """``si`` equals Mitsuba's ``ref`` (float32 rounding) where both hit; both hit the same lanes."""
     np.testing.assert_array_equal(np.array(hit), np.array(ref_hit))
     assert 0 < int(np.array(hit).sum()) < len(np.array(hit))  # hits and misses both tested
@@ -394,39 +402,32 @@ def _assert_same_interactions(mi, si, hit, ref, ref_hit):
 
 def test_the_texel_rays_meet_the_sample_where_mitsubas_ray_intersect_does(rigs):
     """Camera rays to points on and beyond the sample: the same hits, points, frames and uv."""
-    mi, scene, integrator = _scene_of(rigs[("plain", "plain-display")])
+    mi, scene, integrator, cam = _scene_of(rigs[("plain", "plain-display")])
     import drjit as dr
 
     shape = type(integrator)._sample_shape(scene)
-    g = np.linspace(-1.4, 1.4, 15, dtype=np.float32)
-    u, v = (mi.Float(a.ravel()) for a in np.meshgrid(g, g))
-    target = mi.traverse(shape)["to_world"] @ mi.Point3f(u, v, 0.0)
-    cam = mi.Point3f(scene.sensors()[0].world_transform() @ mi.ScalarPoint3f(0.0, 0.0, 0.0))
-    ray = mi.Ray3f(cam, dr.normalize(target - cam))
+    ray = mi.Ray3f(cam, dr.normalize(_on_and_beyond(mi, mi.traverse(shape)["to_world"]) - cam))
     si, hit = type(integrator)._intersect(scene, shape, ray)
     ref = scene.ray_intersect(ray)
-    _assert_same_interactions(mi, si, hit, ref, ref.is_valid() & (ref.shape == mi.ShapePtr(shape)))
+    _assert_same_interactions(si, hit, ref, ref.is_valid() & (ref.shape == mi.ShapePtr(shape)))
 
 
 def test_the_lcd_rays_meet_the_lcd_and_sample_it_where_mitsubas_ray_intersect_does(rigs):
     """Rays from the sample's centre to points on and beyond the LCD: the same hits, and the same
     direction sample as ``mi.DirectionSample3f(scene, si, ref)``."""
-    mi, scene, integrator = _scene_of(rigs[("plain", "plain-display")])
+    mi, scene, integrator, cam = _scene_of(rigs[("plain", "plain-display")])
     import drjit as dr
 
     lcd = integrator.lcd(scene)
-    g = np.linspace(-1.4, 1.4, 15, dtype=np.float32)
-    u, v = (mi.Float(a.ravel()) for a in np.meshgrid(g, g))
-    target = mi.Transform4f(lcd.to_world()) @ mi.Point3f(u, v, 0.0)
+    target = _on_and_beyond(mi, mi.Transform4f(lcd.to_world()))
     sample = type(integrator)._sample_shape(scene)
-    cam = mi.Point3f(scene.sensors()[0].world_transform() @ mi.ScalarPoint3f(0.0, 0.0, 0.0))
     centre = mi.traverse(sample)["to_world"] @ mi.Point3f(0.0, 0.0, 0.0)
     at = scene.ray_intersect(mi.Ray3f(cam, dr.normalize(centre - cam)))  # the shading point
     ray = at.spawn_ray(dr.normalize(target - at.p))
     si, hit = type(integrator)._intersect(scene, lcd.get_shape(), ray)
     ref = scene.ray_intersect(ray)
     ref_hit = ref.is_valid() & (ref.emitter(scene) == mi.EmitterPtr(lcd))
-    _assert_same_interactions(mi, si, hit, ref, ref_hit)
+    _assert_same_interactions(si, hit, ref, ref_hit)
     ds, ds_ref = type(integrator)._direction_sample(si, at, lcd), mi.DirectionSample3f(scene, ref, at)
     on = np.array(hit)
     for name in ("p", "n", "uv", "d"):

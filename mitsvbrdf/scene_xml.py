@@ -220,10 +220,10 @@ def edit_scene(scene: str | Path, out: str | Path, edit: Callable[[ET.Element], 
 
 
 #: The Python types an integrator option may have, and their scene-file tags.
-INTEGRATOR_OPTION_TAGS = {str: "string", int: "integer", float: "float"}
+INTEGRATOR_OPTION_TAGS = {str: "string", bool: "boolean", int: "integer", float: "float"}
 
 
-def write_integrator_options(scene: str | Path, out: str | Path, **options: str | int | float) -> Path:
+def write_integrator_options(scene: str | Path, out: str | Path, **options: str | bool | int | float) -> Path:
     """Copy ``scene`` to ``out`` with these parameters on its integrator (``sampler="independent"``,
     ``cv_blocks=16``, ...; see plugins/importance_integrator.py), replacing any of the same name."""
     tags = INTEGRATOR_OPTION_TAGS
@@ -234,9 +234,10 @@ def write_integrator_options(scene: str | Path, out: str | Path, **options: str 
             raise SceneError(f"{scene}: the scene has no <integrator>")
         for name, value in options.items():
             if type(value) not in tags:
-                raise ValueError(f"integrator option {name}={value!r}: a string, integer or float")
+                raise ValueError(f"integrator option {name}={value!r}: a string, boolean, integer or float")
             for old in [e for e in integ if e.get("name") == name]:
                 integ.remove(old)
-            integ.append(ET.Element(tags[type(value)], {"name": name, "value": str(value)}))
+            text = str(value).lower() if type(value) is bool else str(value)  # Mitsuba reads "true"/"false"
+            integ.append(ET.Element(tags[type(value)], {"name": name, "value": text}))
 
     return edit_scene(scene, out, edit)

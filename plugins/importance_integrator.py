@@ -58,6 +58,12 @@ Parameters:
                      the window's cells for the texels that have one.
     ltc_window_min_roughness (float, default 0.02) below this roughness the window term is off too
                      (the near-mirror caveat of ltc_min_roughness).
+    freeze           (bool, default true) :meth:`render_texels` records its kernels once per
+                     resolution, spp, batch and pattern count (``dr.freeze``) and replays them
+                     when no input carries gradients (maps, patterns, control variate): no
+                     tracing, no kernel assembly (docs/benchmarks/cv_cost.md). With gradients, or
+                     false, every call traces its kernels. A process keeps the recordings of the
+                     last FROZEN_RECORDINGS configurations.
 
 The emission decay, gamma and colour matrix of the scene's display model all apply: the control
 variate uses each block's mean radiance after the display model and the decay at the block's
@@ -93,6 +99,8 @@ from .lcd_integrals import ViewFrame, grid_cell_form_factors, ltc_density, ltc_l
 SAMPLERS = ("independent", "stratified")
 CONTROL_VARIATES = ("none", "diffuse", "ltc", "ltc-cells", "ltc-grid")
 LIGHT_SAMPLINGS = ("uniform", "patterns")
+#: configurations (resolution, spp, batch, pattern count) whose recorded kernels an integrator keeps
+FROZEN_RECORDINGS = 4
 
 
 class _LaneSampler:
@@ -615,6 +623,10 @@ class ImportanceIntegrator(mi.SamplingIntegrator):
         self.ltc_window_min_roughness = float(props.get("ltc_window_min_roughness", 0.02))
         self.light_sampling = str(props.get("light_sampling", "uniform"))
         self.uniform_share = float(props.get("uniform_share", 0.25))
+        self.freeze = bool(props.get("freeze", True))
+        # Per integrator: its recordings go with it. A new configuration records again by design
+        # (the configuration is part of the key), so no warning about re-recording.
+        self._replay = dr.freeze(_recorded_render, limit=FROZEN_RECORDINGS, warn_after=1 << 30)
         if self.light_sampling not in LIGHT_SAMPLINGS:
             raise ValueError(f"importance integrator: light_sampling must be one of {', '.join(LIGHT_SAMPLINGS)}, "
                              f"got {self.light_sampling!r}")
@@ -788,11 +800,32 @@ class ImportanceIntegrator(mi.SamplingIntegrator):
         window); then the result is
         only the residual's estimate, to which the caller adds the control variate's ``known``,
         except in "ltc-grid", where these kernels add K_p themselves (one lane per texel).
+
+        With ``freeze`` (the default) and no gradients, the call replays the kernels recorded by the
+        first call of the same configuration (module docstring).
         """
         H, W = resolution
         lcd = self.lcd(scene)
         if lcd.pattern_count % batch:
             raise ValueError(f"importance integrator: {lcd.pattern_count} patterns do not split into {batch} materials")
+        shape = self._sample_shape(scene)
+        if self.freeze and not self._carries_gradients(shape.bsdf(), lcd, control):
+            seed = mi.UInt32(seed)  # a Python int would be part of the key: a recording per seed
+            # The sizes are part of the key: recorded kernels keep the sizes they were traced with.
+            return self._replay(self, scene, (int(H), int(W)), int(spp), seed, int(batch), lcd.pattern_count, control)
+        return self._render_texels(scene, (H, W), spp, seed, batch, control)
+
+    @staticmethod
+    def _carries_gradients(bsdf, lcd, control) -> bool:
+        """Whether the sample's maps, the patterns or the control variate's arrays have gradients
+        enabled (a frozen function cannot propagate them)."""
+        arrays = [getattr(bsdf, name) for name, _, _ in bsdf.MAPS] + [lcd.data]
+        return dr.grad_enabled(arrays, [c for c in (control or ()) if c is not None])
+
+    def _render_texels(self, scene, resolution: tuple[int, int], spp: int, seed, batch: int, control) -> mi.TensorXf:
+        """:meth:`render_texels`, traced."""
+        H, W = resolution
+        lcd = self.lcd(scene)
         P = lcd.pattern_count // batch
         shape = self._sample_shape(scene)
 
@@ -857,4 +890,10 @@ class ImportanceIntegrator(mi.SamplingIntegrator):
     def to_string(self):
         return (f"ImportanceIntegrator[sampler={self.sampler}, control_variate={self.control_variate}, "
                 f"cv_blocks={self.cv_blocks}, ltc_grid={self.ltc_grid}, ltc_window={self.ltc_window}, "
-                f"light_sampling={self.light_sampling}]")
+                f"light_sampling={self.light_sampling}, freeze={self.freeze}]")
+
+
+def _recorded_render(integrator, scene, resolution, spp, seed, batch, count, control):
+    """What :meth:`ImportanceIntegrator.render_texels` freezes; ``count`` (the LCD's pattern count)
+    only keys the recording, like the other Python ints."""
+    return integrator._render_texels(scene, resolution, spp, seed, batch, control)

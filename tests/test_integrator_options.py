@@ -316,14 +316,96 @@ def test_new_data_and_seed_reuse_the_compiled_kernels(rigs, option):
     assert hist and all(k["cache_hit"] for k in hist)
 
 
-def test_a_render_traces_its_bsdf_once_however_many_scenes_the_process_holds(rigs, monkeypatch):
+@pytest.fixture(scope="module")
+def traced_rigs(tmp_path_factory):
+    """option -> Rig of a scene file with those integrator options, the decay and ``freeze`` off."""
+    d = tmp_path_factory.mktemp("traced")
+    return {name: ms.Rig.from_scene(scene_with(d / f"{name}.xml", {**OPTIONS[name], "freeze": False}, DISPLAY["decay"]))
+            for name in ("plain", "ltc-cells", "ltc-grid-window", "pattern-light")}
+
+
+@pytest.mark.parametrize("option", ["plain", "ltc-cells", "ltc-grid-window", "pattern-light"])
+def test_a_frozen_render_is_the_traced_render_for_new_data_seeds_and_configurations(rigs, traced_rigs, option):
+    frozen, traced = rigs[(option, "decay")], traced_rigs[option]
+    renders = [(textured_material(8, seed=1), pt.random(n=2, seed=1), 4, 0),  # recorded
+               (textured_material(8, seed=2), pt.random(n=2, seed=2), 4, 7),  # replayed: new maps, patterns, seed
+               (ms.SVBRDF.cat([textured_material(8, seed=3), textured_material(8, seed=4)]),
+                torch.stack([pt.random(n=2, seed=3), pt.random(n=2, seed=4)]), 4, 2),  # a batch of two: recorded
+               (textured_material(16, seed=5), pt.random(n=3, seed=5), 2, 1),  # size, patterns, spp: recorded
+               (textured_material(8, seed=6), pt.random(n=2, seed=6), 4, 3)]  # the first configuration again
+    for m, p, spp, seed in renders:
+        torch.testing.assert_close(ms.render(m, p, frozen, method="mitsuba", spp=spp, seed=seed),
+                                   ms.render(m, p, traced, method="mitsuba", spp=spp, seed=seed), rtol=0, atol=0)
+
+
+def _integrator_calls(render, monkeypatch) -> int:
+    """How often ``render()`` runs the integrator's Python code (its BSDF's ``eval_pdf``: once per
+    trace)."""
+    import mitsvbrdf_plugins
+
+    bsdf_class = mitsvbrdf_plugins.plugin_class("svbrdf_ggx", "llvm_ad_rgb")
+    calls = []
+    eval_pdf = bsdf_class.eval_pdf
+
+    def counted(self, *args, **kwargs):
+        calls.append(self)
+        return eval_pdf(self, *args, **kwargs)
+
+    with monkeypatch.context() as patch:
+        patch.setattr(bsdf_class, "eval_pdf", counted)
+        render()
+    return len(calls)
+
+
+def test_the_same_configuration_replays_without_tracing_and_a_new_one_records(rigs, monkeypatch):
+    rig = rigs[("ltc-grid-window", "gamma-matrix")]
+    m, p = textured_material(8, seed=1), pt.random(n=2, seed=1)
+    ms.render(m, p, rig, method="mitsuba", spp=3, seed=0)
+    again = lambda: ms.render(textured_material(8, seed=2), pt.random(n=2, seed=2), rig, method="mitsuba", spp=3,
+                              seed=9)
+    assert _integrator_calls(again, monkeypatch) == 0
+    other_spp = lambda: ms.render(m, p, rig, method="mitsuba", spp=5, seed=0)
+    assert _integrator_calls(other_spp, monkeypatch) == 1
+
+
+def test_python_int_seeds_replay_the_recording(rigs, monkeypatch):
+    from mitsvbrdf.render.mitsuba import load_scene
+
+    rig = rigs[("plain", "plain-display")]
+    ms.render(textured_material(8, seed=1), pt.random(n=2, seed=1), rig, method="mitsuba", spp=2, seed=0)
+    _, scene, _, integrator = load_scene(str(rig.source), "llvm_ad_rgb")  # holds those maps and patterns
+    integrator.render_texels(scene, (8, 8), 2, 11)
+    assert _integrator_calls(lambda: integrator.render_texels(scene, (8, 8), 2, 12), monkeypatch) == 0
+
+
+@pytest.mark.parametrize("option", ["plain", "ltc-grid-window"])
+def test_a_render_with_gradients_after_frozen_ones_is_traced_and_has_the_traced_gradients(rigs, traced_rigs,
+                                                                                         option, monkeypatch):
+    frozen, traced = rigs[(option, "decay")], traced_rigs[option]
+    m, p = textured_material(8, seed=1), pt.random(n=2, seed=1)
+    ms.render(m, p, frozen, method="mitsuba", spp=4, seed=0)  # recorded
+    grads = []
+    for rig in (frozen, traced):
+        q = p.clone().requires_grad_(True)
+        calls = _integrator_calls(lambda: ms.render(m, q, rig, method="mitsuba", spp=4, seed=3).square().sum()
+                                  .backward(), monkeypatch)
+        assert calls == 1
+        grads.append(q.grad)
+    assert grads[0].abs().sum() > 0
+    torch.testing.assert_close(grads[0], grads[1], rtol=0, atol=0)
+
+
+def test_a_render_traces_its_bsdf_once_however_many_scenes_the_process_holds(rigs, monkeypatch, tmp_path):
     """render_texels calls the sample's own BSDF: the virtual ``si.bsdf()`` call was traced once
-    for every BSDF of every scene loaded in the process (a benchmark holds 18 scenes)."""
+    for every BSDF of every scene loaded in the process (a benchmark holds 18 scenes). (Traced
+    renders: a frozen one replays without tracing.)"""
     import mitsvbrdf_plugins
 
     m, p = textured_material(8, seed=1), pt.random(n=2, seed=1)
     for display in DISPLAY:  # three scenes loaded at least
         ms.render(m, p, rigs[("plain", display)], method="mitsuba", spp=2, seed=0)
+    traced_rig = ms.Rig.from_scene(scene_with(tmp_path / "traced.xml", {**OPTIONS["plain"], "freeze": False}))
+    ms.render(m, p, traced_rig, method="mitsuba", spp=2, seed=0)
     bsdf_class = mitsvbrdf_plugins.plugin_class("svbrdf_ggx", "llvm_ad_rgb")
     traced = []
     eval_pdf = bsdf_class.eval_pdf
@@ -333,7 +415,7 @@ def test_a_render_traces_its_bsdf_once_however_many_scenes_the_process_holds(rig
         return eval_pdf(self, *args, **kwargs)
 
     monkeypatch.setattr(bsdf_class, "eval_pdf", counted)
-    ms.render(m, p, rigs[("plain", "plain-display")], method="mitsuba", spp=2, seed=0)
+    ms.render(m, p, traced_rig, method="mitsuba", spp=2, seed=0)
     assert len(traced) == 1
 
 
@@ -353,14 +435,15 @@ def _variables_traced(render, capfd) -> int:
     return (log.out + log.err).count("jit_var_new(")
 
 
-def test_a_render_traces_as_much_however_many_scenes_the_process_holds(rigs, tmp_path, capfd):
+def test_a_render_traces_as_much_however_many_scenes_the_process_holds(tmp_path, capfd):
     """The integrator's rays find their surfaces without ``scene.ray_intersect``, whose virtual
     call on the shape hit Dr.Jit traced once for every shape of every scene loaded (with the
-    benchmarks' 18 scenes, most of a 64 px render's time)."""
+    benchmarks' 18 scenes, most of a 64 px render's time). (Traced renders: a frozen one replays
+    without tracing.)"""
     from mitsvbrdf.render.mitsuba import load_scene
 
     m, p = textured_material(4, seed=1), pt.random(n=2, seed=1)
-    rig = rigs[("ltc-grid-window", "plain-display")]
+    rig = ms.Rig.from_scene(scene_with(tmp_path / "traced.xml", {**OPTIONS["ltc-grid-window"], "freeze": False}))
 
     def render():
         ms.render(m, p, rig, method="mitsuba", spp=1, seed=0)

@@ -158,7 +158,7 @@ def test_an_unknown_integrator_option_stops_the_run_before_its_first_step(tmp_pa
         Trainer(tiny("init", tmp_path / "run", extra=["render.integrator.ltc_gird=8"]), progress=False)
 
 
-@pytest.mark.parametrize("extra, match", [(["render.integrator.ltc_grid=[8]"], "must be a string, integer or float"),
+@pytest.mark.parametrize("extra, match", [(["render.integrator.ltc_grid=[8]"], "must be a string, boolean, integer or float"),
                                           (["render.integrator.ltc_grid=8", 'render.method="ltc"'],
                                            "need render.method = 'mitsuba'")])
 def test_integrator_options_that_cannot_apply_are_config_errors(extra, match):

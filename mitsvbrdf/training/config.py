@@ -332,7 +332,7 @@ def _check_values(cfg: Config) -> None:
             raise ConfigError(f"loss.map_weights: {e}") from None
     for name, value in cfg.render.integrator.items():
         if type(value) not in INTEGRATOR_OPTION_TAGS:
-            raise ConfigError(f"render.integrator.{name}: must be a string, integer or float, got {value!r}")
+            raise ConfigError(f"render.integrator.{name}: must be a string, boolean, integer or float, got {value!r}")
     if cfg.render.integrator and cfg.render.method != "mitsuba":
         raise ConfigError(f"render.integrator: integrator options need render.method = 'mitsuba', "
                           f"got {cfg.render.method!r}")

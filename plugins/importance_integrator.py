@@ -62,8 +62,13 @@ Parameters:
                      resolution, spp, batch and pattern count (``dr.freeze``) and replays them
                      when no input carries gradients (maps, patterns, control variate): no
                      tracing, no kernel assembly (docs/benchmarks/cv_cost.md). With gradients, or
-                     false, every call traces its kernels. A process keeps the recordings of the
-                     last FROZEN_RECORDINGS configurations.
+                     false, every call traces its kernels. An integrator keeps the recordings of
+                     its last FROZEN_RECORDINGS configurations. Limitation: the scene is an input
+                     of the frozen function, and Mitsuba brings every emitter, shape and sensor
+                     of every scene loaded in the process with it; a process that renders through
+                     several scenes in turn records again whenever another scene rendered since
+                     (a recording costs about what tracing does), so there freeze gains nothing.
+                     Training, capture and evaluation render through one scene.
 
 The emission decay, gamma and colour matrix of the scene's display model all apply: the control
 variate uses each block's mean radiance after the display model and the decay at the block's
@@ -100,7 +105,7 @@ SAMPLERS = ("independent", "stratified")
 CONTROL_VARIATES = ("none", "diffuse", "ltc", "ltc-cells", "ltc-grid")
 LIGHT_SAMPLINGS = ("uniform", "patterns")
 #: configurations (resolution, spp, batch, pattern count) whose recorded kernels an integrator keeps
-FROZEN_RECORDINGS = 4
+FROZEN_RECORDINGS = 8
 
 
 class _LaneSampler:

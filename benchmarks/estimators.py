@@ -15,8 +15,11 @@ from mitsvbrdf.scene_xml import write_integrator_options
 from mitsvbrdf.rig import DEFAULT_SCENE
 
 DEFAULT = "ltc-grid-window-8"
-#: name -> integrator options ("plain" is the integrator before variance reduction)
-ESTIMATORS = {"plain": {"sampler": "independent", "control_variate": "none"},
+#: name -> integrator options ("plain" is the integrator before variance reduction: independent
+#: samples, no control variate, its kernels traced at every render; "plain-frozen" the same with
+#: the recorded kernels replayed, as every other estimator here and the integrator's default do)
+ESTIMATORS = {"plain": {"sampler": "independent", "control_variate": "none", "freeze": False},
+              "plain-frozen": {"sampler": "independent", "control_variate": "none"},
               "stratified": {"sampler": "stratified", "control_variate": "none"},
               "diffuse-cv": {"control_variate": "diffuse"},
               "ltc-cv": {"control_variate": "ltc"},
@@ -43,7 +46,11 @@ ESTIMATORS = {"plain": {"sampler": "independent", "control_variate": "none"},
               "ltc-grid-8-window-8": {"control_variate": "ltc-grid", "ltc_grid": 8, "ltc_cells_min_roughness": 0.2,
                                       "ltc_window": 8, "ltc_window_min_roughness": 0.02},
               DEFAULT: {"control_variate": "ltc-grid", "ltc_grid": 4, "ltc_cells_min_roughness": 0.2,
-                        "ltc_window": 8, "ltc_window_min_roughness": 0.02}}
+                        "ltc_window": 8, "ltc_window_min_roughness": 0.02},
+              f"{DEFAULT}-traced": {"control_variate": "ltc-grid", "ltc_grid": 4, "ltc_cells_min_roughness": 0.2,
+                                    "ltc_window": 8, "ltc_window_min_roughness": 0.02, "freeze": False}}
+for _options in ESTIMATORS.values():
+    _options.setdefault("freeze", True)
 
 
 def estimator_names(spec: str, always: tuple[str, ...] = ()) -> list[str]:

@@ -22,6 +22,7 @@ import tempfile
 import time
 from pathlib import Path
 
+import openmp_policy  # before torch: its idle OpenMP threads sleep while Dr.Jit renders
 import torch
 
 import mitsvbrdf as ms
@@ -64,7 +65,7 @@ def main() -> None:
     ap.add_argument("--spp", type=int, nargs="+", default=[1, 4, 16, 64])
     ap.add_argument("--batches", type=int, nargs="+", default=[1, 8])
     ap.add_argument("--repeats", type=int, default=3)
-    ap.add_argument("--estimators", default=f"plain,stratified,{DEFAULT}", help="comma-separated names")
+    ap.add_argument("--estimators", default=f"plain,plain-frozen,stratified,{DEFAULT}", help="comma-separated names")
     ap.add_argument("--device", default="cuda" if torch.cuda.is_available() else "cpu")
     ap.add_argument("--no-reference", action="store_true", help="skip the error column")
     ap.add_argument("--quick", action="store_true")
@@ -114,7 +115,7 @@ def main() -> None:
             print(rows[-1], flush=True)
     name = torch.cuda.get_device_name(0) if device.type == "cuda" else f"CPU, {torch.get_num_threads()} threads"
     lines = [f"Mitsuba renderer (`method=\"mitsuba\"`) on {name}, {args.size}x{args.size}, P = 5 patterns. "
-             f"{load.sentence()}", "",
+             f"{load.sentence()} {openmp_policy.sentence()}", "",
              "| estimator | B | spp | forward (ms) | forward, same maps again (ms) | forward+backward (ms) | "
              "rel. RMSE vs reference (B=1) |",
              "|---|---:|---:|---:|---:|---:|---:|"]

@@ -21,19 +21,24 @@ error.
 Study 2 (procedural): ``generate(4, size=64, seed=123)`` under MonoGrad, ColorGrad and the shipped
 networks' adaptive patterns (L_0 + the 4 predicted for each material); relative RMSE per material
 and pattern group for every estimator and spp, and time per batch under MonoGrad: the median of
-``--time-rounds`` renders taken in interleaved rounds, one of every estimator and spp per round (as
-benchmarks/cv_cost.py times them: taken one estimator after another, the later ones ran slower).
+``--time-rounds`` renders taken in interleaved rounds, one of every estimator and spp per round, each
+right after an untimed one of the same (as benchmarks/cv_cost.py times them: taken one estimator
+after another, the later ones ran slower; without the untimed render, a replaying estimator would
+record again whenever another scene rendered in between).
 It prints the default estimator's worst 4-spp error (the goal: <= 0.05) and its time against
 plain's at 4 spp (the goal: <= 1.5x).
 
 Estimators (:data:`ESTIMATORS`, integrator options in a copy of the scene file): "plain" (the
-integrator before control variates: independent samples, no control variate), "stratified",
+integrator before control variates: independent samples, no control variate, its kernels traced at
+every render), "plain-frozen" (the same, replaying its recorded kernels as all the others do),
+"stratified",
 "diffuse-cv", "ltc-cv" (one radiance per texel for the specular lobe), "ltc-cv" with 4 and 16
 blocks and with the LCD sampled by the patterns' brightness, "ltc-cells" (both lobes under every
 cell's radiance, lobe grid 16, narrow lobes under an 8 x 8 window of cells) without the window,
 with a 4 x 4 one, with grids 8 (with and without the window) and 32, and "ltc-grid" (the per-cell
 terms in the integrator's kernels) on grids 4 and 8 without a window, and with 4 x 4 and 8 x 8
-windows ("ltc-grid-window-8", grid 4: the default).
+windows ("ltc-grid-window-8", grid 4: the default; "ltc-grid-window-8-traced" the same tracing its
+kernels at every render).
 Prints tables, writes CSV + markdown, and plots of error vs. time and vs. spp.
 """
 
@@ -45,6 +50,7 @@ import tempfile
 import time
 from pathlib import Path
 
+import openmp_policy  # before torch: its idle OpenMP threads sleep while Dr.Jit renders
 import torch
 
 import mitsvbrdf as ms
@@ -181,7 +187,8 @@ def procedural_study(rigs: dict[str, ms.Rig], n: int, size: int, spps, rounds: i
         return ms.render(m, p, rig, method="mitsuba", spp=spp, seed=s)
 
     seconds = interleaved_seconds({(est, spp): (lambda rig=rig, spp=spp: fn(mats, groups["monograd"], 1, rig, spp))
-                                   for est, rig in rigs.items() for spp in spps}, rounds, before=LAST_MATERIALS.clear)
+                                   for est, rig in rigs.items() for spp in spps}, rounds, before=LAST_MATERIALS.clear,
+                                  settle=True)
     rows = []
     for est, rig in rigs.items():
         for spp in spps:
@@ -200,7 +207,7 @@ def procedural_study(rigs: dict[str, ms.Rig], n: int, size: int, spps, rounds: i
              f"patterns (L_0 + 4 predicted per material, from a reference-rendered I_0); relative RMSE against the "
              f"reference per pattern group / material; time for the batch of {n} materials under MonoGrad "
              f"({torch.get_num_threads()} threads; median of {rounds} renders in interleaved rounds of every estimator "
-             f"and spp, material cache cleared). {load.sentence()}", "",
+             f"and spp, material cache cleared). {load.sentence()} {openmp_policy.sentence()}", "",
              "| estimator | spp | time (s) | median | worst | " + " | ".join(keys) + " |",
              "|---|---:|---:|---:|---:|" + "---:|" * len(keys)]
     lines += [f"| {r['estimator']} | {r['spp']} | {r['seconds_batch']} | {r['median']:.4f} | {r['worst']:.4f} | "
@@ -214,6 +221,10 @@ def procedural_study(rigs: dict[str, ms.Rig], n: int, size: int, spps, rounds: i
                       f"{d['seconds_batch']:.3f} s against {p['seconds_batch']:.3f} s "
                       f"({d['seconds_batch'] / p['seconds_batch']:.2f}x; goal <= 1.5x: "
                       f"{'met' if d['seconds_batch'] <= 1.5 * p['seconds_batch'] else 'NOT met'})."]
+        if ("plain-frozen", 4) in by:  # the variance reduction's own cost: both replay recorded kernels
+            f = by[("plain-frozen", 4)]
+            lines[-1] += (f" Against plain-frozen ({f['seconds_batch']:.3f} s, the same kernels as plain, replayed as "
+                          f"the default's are): {d['seconds_batch'] / f['seconds_batch']:.2f}x.")
     return rows, lines
 
 
@@ -254,7 +265,7 @@ def roughness_study(rigs: dict[str, ms.Rig], args, cases, spps, judged: list[str
              f"under 5 patterns ({torch.get_num_threads()} threads; median of {args.time_rounds} renders in interleaved "
              f"rounds of every method, LTC-exact one render), at roughness 0.3 and, for the narrow lobes "
              f"(r < {NARROW_BELOW:g}: the window term's range), at 0.1. Mitsuba rows are estimator-spp. "
-             f"{load.sentence()}", "",
+             f"{load.sentence()} {openmp_policy.sentence()}", "",
              "| method | time (s) | time, r=0.1 (s) | " + " | ".join(keys) + " |", "|---|---:|---:|" + "---:|" * len(keys)]
     lines += [f"| {r['method']} | {r['seconds_per_material_5_patterns']} | {r['seconds_narrow']} | " +
               " | ".join(f"{r[k]:.4f}" for k in keys) + " |" for r in rows]

@@ -7,8 +7,8 @@ Every estimator of :data:`estimators.ESTIMATORS` renders ``generate(n, size, see
 MonoGrad at ``--spp`` (after one untimed render each that compiles the kernels); the median of
 ``--repeats`` renders is the time, each with the material cache (:data:`LAST_MATERIALS`) cleared,
 as a training step's first render finds it, and each right after an untimed render of the same
-estimator, as in a process that renders through one scene (a training run; report.py's
-``interleaved_seconds``). The renders go in rounds, one of every estimator per
+estimator with the other estimators' scenes released, as in a process that renders through one
+scene (a training run; ``render_alone`` in estimators.py). The renders go in rounds, one of every estimator per
 round: timed one estimator after another, the later ones ran slower than the same renders timed
 beside "plain" (a process's state drifts as renders of other estimators allocate and cache).
 "closed form" is the median time of
@@ -35,7 +35,6 @@ import argparse
 import tempfile
 from pathlib import Path
 
-import openmp_policy  # before torch: its idle OpenMP threads sleep while Dr.Jit renders
 import drjit as dr
 import torch
 
@@ -44,7 +43,7 @@ from mitsvbrdf import patterns as pt
 from mitsvbrdf.data import procedural
 from mitsvbrdf.render.control_variate import LAST_MATERIALS
 from mitsvbrdf.render.mitsuba import integrator_control_variate, load_scene, variant_for
-from estimators import ESTIMATORS, estimator_names, estimator_rigs
+from estimators import ESTIMATORS, estimator_names, estimator_rigs, render_alone
 from report import OtherLoad, interleaved_seconds, median_seconds, write_report
 
 ROOT = Path(__file__).resolve().parent.parent
@@ -91,14 +90,14 @@ def main() -> None:
     rows = []
     with tempfile.TemporaryDirectory() as work:
         rigs = estimator_rigs(Path(work), names)
-        totals = interleaved_seconds({name: (lambda rig=rig: ms.render(m, pats, rig, method="mitsuba", spp=args.spp,
-                                                                       seed=1)) for name, rig in rigs.items()},
-                                     args.repeats, before=LAST_MATERIALS.clear, settle=True)
+        totals = interleaved_seconds({name: (lambda rig=rig: render_alone(m, pats, rig, args.spp))
+                                      for name, rig in rigs.items()}, args.repeats, before=LAST_MATERIALS.clear,
+                                     settle=True)
         for name, rig in rigs.items():
             total = totals[name]
             cf = closed_form(m, pats, rig)
             closed = median_seconds(cf, args.repeats, before=LAST_MATERIALS.clear) if cf is not None else 0.0
-            ms.render(m, pats, rig, method="mitsuba", spp=args.spp, seed=1)  # settled, as the timed renders
+            render_alone(m, pats, rig, args.spp)  # settled, as the timed renders
             LAST_MATERIALS.clear()
             texel_ms, sample_ms, assembly_ms = kernel_ms(lambda rig=rig: ms.render(m, pats, rig, method="mitsuba", spp=args.spp, seed=1),
                                             m.batch_size * args.size ** 2, m.batch_size * args.size ** 2 * args.spp)
@@ -121,10 +120,11 @@ def main() -> None:
             "assembling the code of all its kernels (one render, Dr.Jit's kernel history). 'plain' traces its "
             "kernels at every render, as the integrator did before variance reduction; every other estimator "
             "('plain-frozen' included) replays the kernels it recorded at its first render (the integrator's "
-            "`freeze` option), and each timed render follows an untimed one of the same estimator. The kernel "
+            "`freeze` option), and each timed render follows an untimed one of the same estimator, with no "
+            "other estimator's scene loaded (as in a training run). The kernel "
             "history is a flag that keys a recording, so the kernel columns come from a render that records "
             "again: a replay assembles nothing. "
-            f"{load.sentence()} {openmp_policy.sentence()}\n\n"
+            f"{load.sentence()}\n\n"
             "| estimator | s / render | closed form (s) | Monte Carlo and transfers (s) | x plain | x plain-frozen "
             "| per-texel kernels (ms) | per-sample kernels (ms) | assembling kernels (ms) |\n"
             "|---|---:|---:|---:|---:|---:|---:|---:|---:|\n" +

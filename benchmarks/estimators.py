@@ -12,6 +12,7 @@ from pathlib import Path
 
 import mitsvbrdf as ms
 from mitsvbrdf.scene_xml import write_integrator_options
+from mitsvbrdf.render.mitsuba import release_scenes
 from mitsvbrdf.rig import DEFAULT_SCENE
 
 DEFAULT = "ltc-grid-window-8"
@@ -73,3 +74,13 @@ def estimator_rigs(work: Path, names=None) -> dict[str, ms.Rig]:
     scene = DEFAULT_SCENE
     return {name: ms.Rig.from_scene(write_integrator_options(scene, work / f"{name}.xml", **ESTIMATORS[name]))
             for name in (names or ESTIMATORS)}
+
+
+def render_alone(svbrdf, patterns, rig: ms.Rig, spp: int, seed: int = 1):
+    """``ms.render(..., method="mitsuba")`` with every other scene released first
+    (:func:`mitsvbrdf.render.mitsuba.release_scenes`), as in a process that renders through one
+    scene (a training run): with the other estimators' scenes alive, a replaying estimator would
+    record its kernels again whenever another one rendered in between. The scene is loaded again
+    when it was released: time a render that follows one of the same rig."""
+    release_scenes(keep=rig.source)
+    return ms.render(svbrdf, patterns, rig, method="mitsuba", spp=spp, seed=seed)

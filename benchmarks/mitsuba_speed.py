@@ -22,7 +22,6 @@ import tempfile
 import time
 from pathlib import Path
 
-import openmp_policy  # before torch: its idle OpenMP threads sleep while Dr.Jit renders
 import torch
 
 import mitsvbrdf as ms
@@ -115,7 +114,7 @@ def main() -> None:
             print(rows[-1], flush=True)
     name = torch.cuda.get_device_name(0) if device.type == "cuda" else f"CPU, {torch.get_num_threads()} threads"
     lines = [f"Mitsuba renderer (`method=\"mitsuba\"`) on {name}, {args.size}x{args.size}, P = 5 patterns. "
-             f"{load.sentence()} {openmp_policy.sentence()}", "",
+             f"{load.sentence()}", "",
              "| estimator | B | spp | forward (ms) | forward, same maps again (ms) | forward+backward (ms) | "
              "rel. RMSE vs reference (B=1) |",
              "|---|---:|---:|---:|---:|---:|---:|"]

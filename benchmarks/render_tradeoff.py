@@ -22,9 +22,9 @@ Study 2 (procedural): ``generate(4, size=64, seed=123)`` under MonoGrad, ColorGr
 networks' adaptive patterns (L_0 + the 4 predicted for each material); relative RMSE per material
 and pattern group for every estimator and spp, and time per batch under MonoGrad: the median of
 ``--time-rounds`` renders taken in interleaved rounds, one of every estimator and spp per round, each
-right after an untimed one of the same (as benchmarks/cv_cost.py times them: taken one estimator
-after another, the later ones ran slower; without the untimed render, a replaying estimator would
-record again whenever another scene rendered in between).
+right after an untimed one of the same with the other scenes released (as benchmarks/cv_cost.py
+times them: taken one estimator after another, the later ones ran slower; ``render_alone`` in
+estimators.py says why the others' scenes go).
 It prints the default estimator's worst 4-spp error (the goal: <= 0.05) and its time against
 plain's at 4 spp (the goal: <= 1.5x).
 
@@ -50,14 +50,13 @@ import tempfile
 import time
 from pathlib import Path
 
-import openmp_policy  # before torch: its idle OpenMP threads sleep while Dr.Jit renders
 import torch
 
 import mitsvbrdf as ms
 from mitsvbrdf.demo import DEFAULT_MATERIAL
 from mitsvbrdf.patterns import colorgrad, monograd, random, step_edges
 from mitsvbrdf.render.control_variate import LAST_MATERIALS
-from estimators import DEFAULT, ESTIMATORS, estimator_names, estimator_rigs
+from estimators import DEFAULT, ESTIMATORS, estimator_names, estimator_rigs, render_alone
 from report import OtherLoad, interleaved_seconds, write_report
 
 ROOT = Path(__file__).resolve().parent.parent
@@ -183,10 +182,7 @@ def procedural_study(rigs: dict[str, ms.Rig], n: int, size: int, spps, rounds: i
     groups = {"monograd": monograd(), "colorgrad": colorgrad(), "adaptive": torch.stack([a.patterns for a in acq])}
     refs = {g: ms.render(mats, p, base) for g, p in groups.items()}
 
-    def fn(m, p, s, rig, spp):
-        return ms.render(m, p, rig, method="mitsuba", spp=spp, seed=s)
-
-    seconds = interleaved_seconds({(est, spp): (lambda rig=rig, spp=spp: fn(mats, groups["monograd"], 1, rig, spp))
+    seconds = interleaved_seconds({(est, spp): (lambda rig=rig, spp=spp: render_alone(mats, groups["monograd"], rig, spp))
                                    for est, rig in rigs.items() for spp in spps}, rounds, before=LAST_MATERIALS.clear,
                                   settle=True)
     rows = []
@@ -194,7 +190,7 @@ def procedural_study(rigs: dict[str, ms.Rig], n: int, size: int, spps, rounds: i
         for spp in spps:
             row = {"estimator": est, "spp": spp, "seconds_batch": round(seconds[(est, spp)], 4)}
             for g, p in groups.items():
-                img = fn(mats, p, 7, rig, spp)
+                img = ms.render(mats, p, rig, method="mitsuba", spp=spp, seed=7)
                 for b in range(n):
                     row[f"{g}/{b}"] = round(rel_rmse(img[b], refs[g][b]), 5)
             row["worst"] = max(v for k, v in row.items() if "/" in k)
@@ -207,7 +203,7 @@ def procedural_study(rigs: dict[str, ms.Rig], n: int, size: int, spps, rounds: i
              f"patterns (L_0 + 4 predicted per material, from a reference-rendered I_0); relative RMSE against the "
              f"reference per pattern group / material; time for the batch of {n} materials under MonoGrad "
              f"({torch.get_num_threads()} threads; median of {rounds} renders in interleaved rounds of every estimator "
-             f"and spp, material cache cleared). {load.sentence()} {openmp_policy.sentence()}", "",
+             f"and spp, material cache cleared). {load.sentence()}", "",
              "| estimator | spp | time (s) | median | worst | " + " | ".join(keys) + " |",
              "|---|---:|---:|---:|---:|" + "---:|" * len(keys)]
     lines += [f"| {r['estimator']} | {r['spp']} | {r['seconds_batch']} | {r['median']:.4f} | {r['worst']:.4f} | "
@@ -265,7 +261,7 @@ def roughness_study(rigs: dict[str, ms.Rig], args, cases, spps, judged: list[str
              f"under 5 patterns ({torch.get_num_threads()} threads; median of {args.time_rounds} renders in interleaved "
              f"rounds of every method, LTC-exact one render), at roughness 0.3 and, for the narrow lobes "
              f"(r < {NARROW_BELOW:g}: the window term's range), at 0.1. Mitsuba rows are estimator-spp. "
-             f"{load.sentence()} {openmp_policy.sentence()}", "",
+             f"{load.sentence()}", "",
              "| method | time (s) | time, r=0.1 (s) | " + " | ".join(keys) + " |", "|---|---:|---:|" + "---:|" * len(keys)]
     lines += [f"| {r['method']} | {r['seconds_per_material_5_patterns']} | {r['seconds_narrow']} | " +
               " | ".join(f"{r[k]:.4f}" for k in keys) + " |" for r in rows]

@@ -80,10 +80,8 @@ def interleaved_seconds(fns: dict, repeats: int = 5, *, before=None, settle: boo
     """Median wall time of ``repeats`` calls of each of ``fns`` (name -> callable), in rounds of
     one call each (after one untimed call each), so that every one sees the same drift of the
     process and the machine; ``before()`` runs untimed ahead of every call. With ``settle``, each
-    timed call follows an untimed call of the same function (before ``before()``): the timed one
-    then runs as in a process that calls only it. (A Mitsuba render replays its recorded kernels
-    only when no other scene changed since its last call: a Scene argument of a frozen function
-    brings every emitter, shape and sensor of every loaded scene with it.)"""
+    timed call follows an untimed call of the same function (before ``before()``), so that what the
+    previous function left behind (e.g. a scene to load again) is not timed."""
     for fn in fns.values():
         fn()
     times = {name: [] for name in fns}

@@ -368,6 +368,20 @@ def test_the_same_configuration_replays_without_tracing_and_a_new_one_records(ri
     assert _integrator_calls(other_spp, monkeypatch) == 1
 
 
+def test_released_scenes_load_again_and_render_the_same(rigs):
+    from mitsvbrdf.render.mitsuba import load_scene, release_scenes
+
+    kept, released = rigs[("ltc-grid-window", "plain-display")], rigs[("ltc-grid-window", "decay")]
+    m, p = textured_material(8, seed=1), pt.random(n=2, seed=1)
+    before = ms.render(m, p, released, method="mitsuba", spp=2, seed=0)
+    old_scene = load_scene(str(released.source), "llvm_ad_rgb")[1]
+    kept_scene = load_scene(str(kept.source), "llvm_ad_rgb")[1]
+    assert release_scenes(keep=kept.source) >= 1
+    assert load_scene(str(kept.source), "llvm_ad_rgb")[1] is kept_scene
+    assert load_scene(str(released.source), "llvm_ad_rgb")[1] is not old_scene
+    torch.testing.assert_close(ms.render(m, p, released, method="mitsuba", spp=2, seed=0), before, rtol=0, atol=0)
+
+
 def test_python_int_seeds_replay_the_recording(rigs, monkeypatch):
     from mitsvbrdf.render.mitsuba import load_scene
 

@@ -57,6 +57,22 @@ def load_scene(source: str, variant: str):
     return _SCENES[key]
 
 
+def release_scenes(keep: str | None = None) -> int:
+    """Drop the loaded scenes (all, or all but those of the scene file ``keep``) from the cache, so
+    that Mitsuba frees them once nothing else holds them; returns how many were dropped. A frozen
+    render's inputs include every emitter, shape and sensor of every scene alive in the process
+    (the ``freeze`` option of plugins/importance_integrator.py): with other scenes rendering in
+    between, a render records its kernels again instead of replaying them."""
+    import gc
+
+    drop = [key for key in _SCENES if keep is None or key[0] != str(keep)]
+    for key in drop:
+        del _SCENES[key]
+    if drop:
+        gc.collect()  # the plugins' Python objects hold the scenes' Mitsuba objects in cycles
+    return len(drop)
+
+
 def _place_sample(params, rig: Rig) -> None:
     """Move the loaded scene's sample rectangle where ``rig`` has it (a window of the sample,
     :meth:`Rig.window`, or back to the file's); untouched, and no scene update, when it is there."""

@@ -13,8 +13,9 @@ ks = 0.3, for r in {0.01, 0.05, 0.1, 0.3, 0.6, 1.0}, plus a near-grazing case (r
 normal tilted 70 degrees away from the camera's azimuth). Patterns: MonoGrad, 5 random, 4 step
 edges. Error: relative RMSE of each method's images against the reference renderer (default
 settings) at ``--error-size``; time: one material under 5 patterns at ``--time-size`` on this
-machine's CPU, the median of ``--time-rounds`` renders taken in interleaved rounds of every method
-(LTC-exact, which takes seconds, one render). For every roughness it also states whether the default estimator, at the CPU time
+machine's CPU, the median of ``--time-rounds`` renders taken in interleaved rounds of every method,
+each right after an untimed one of the same (Mitsuba estimators with the other scenes released;
+LTC-exact, which takes seconds, one render). For every roughness it also states whether the default estimator, at the CPU time
 of LTC-prefiltered (interpolated on its error-vs-time curve), has at most half LTC-prefiltered's
 error.
 
@@ -111,7 +112,7 @@ def methods(rigs: dict[str, ms.Rig], spps=SPPS):
     for est, rig in rigs.items():
         for spp in spps:
             out.append((f"{est}-{spp}spp",
-                        lambda m, p, s, spp=spp, rig=rig: ms.render(m, p, rig, method="mitsuba", spp=spp, seed=s)))
+                        lambda m, p, s, spp=spp, rig=rig: render_alone(m, p, rig, spp, seed=s)))
     return out
 
 
@@ -243,7 +244,8 @@ def roughness_study(rigs: dict[str, ms.Rig], args, cases, spps, judged: list[str
         # time: one material under 5 patterns, in interleaved rounds (LTC-exact, 10^2 times slower, once)
         seconds = interleaved_seconds({(name, column): (lambda fn=fn, m=m: fn(m, pats[:5], 1))
                                        for name, fn in timed_methods if name != "ltc-exact"
-                                       for column, m in on.items()}, args.time_rounds, before=LAST_MATERIALS.clear)
+                                       for column, m in on.items()}, args.time_rounds, before=LAST_MATERIALS.clear,
+                                      settle=True)
         for name, fn in timed_methods:
             row = {"method": name}
             for column, m in on.items():

@@ -77,7 +77,7 @@ disagree. Two terms (either may be switched off by the scene file's integrator o
   pass over memory, where one kernel does it in one pass. ``known`` is None: the integrator's
   result is the whole estimate. Its grid defaults to k = 4 (the kernel unrolls (k + 1)^2 lobe
   evaluations per texel; k = 8 leaves a third of its noise at roughness 0.3, 0.035 against 0.11
-  at 4 spp, for 3.3x plain's time against 2.1x: docs/benchmarks/render_tradeoff_roughness_window.md,
+  at 4 spp, for 1.81x plain's time against 1.32x: docs/benchmarks/render_tradeoff_roughness_window.md,
   docs/benchmarks/cv_cost.md).
 
 Rejected alternatives (tried during development, not kept as options): the closed form inside

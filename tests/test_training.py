@@ -143,14 +143,16 @@ def test_each_step_trains_on_a_window_of_the_larger_materials_rendered_where_it_
 
 def test_integrator_options_reach_the_training_captures_through_a_copy_of_the_scene(tmp_path):
     t = Trainer(tiny("init", tmp_path / "run", extra=["render.integrator.ltc_grid=8",
-                                                      'render.integrator.sampler="independent"']), progress=False)
+                                                      'render.integrator.sampler="independent"',
+                                                      "render.integrator.freeze=false"]), progress=False)
     scene = (tmp_path / "run" / "scene.xml").read_text()
     assert t.rig.source == t.stage.rig.source == str(tmp_path / "run" / "scene.xml")
     assert '<integer name="ltc_grid" value="8"' in scene and '<string name="sampler" value="independent"' in scene
+    assert '<boolean name="freeze" value="false"' in scene
     from mitsvbrdf.render.mitsuba import load_scene, variant_for
 
     integrator = load_scene(str(t.rig.source), variant_for(torch.device("cpu")))[3]
-    assert (integrator.ltc_grid, integrator.sampler) == (8, "independent")
+    assert (integrator.ltc_grid, integrator.sampler, integrator.freeze) == (8, "independent", False)
 
 
 def test_an_unknown_integrator_option_stops_the_run_before_its_first_step(tmp_path):

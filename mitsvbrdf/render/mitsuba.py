@@ -6,7 +6,9 @@ every call swaps the material maps and patterns into the loaded scene in place
 texel-grid renderer: (B, P, 3, H, W), all P patterns from one set of light samples. Gradients w.r.t.
 patterns and maps flow back to torch through ``dr.wrap``. CPU tensors use ``llvm_ad_rgb``, CUDA
 tensors ``cuda_ad_rgb``. The seed is passed as an opaque value, so new data and new seeds reuse the
-compiled kernels; only a new resolution, spp or pattern count compiles new ones.
+compiled kernels; only a new resolution, spp or pattern count compiles new ones. Without gradients
+the integrator replays the kernels it recorded for the configuration, tracing nothing (its
+``freeze`` option; :func:`release_scenes` says when that cannot work).
 
 The integrator's options in the scene file decide the estimator (sampler, control variate; see
 plugins/importance_integrator.py). With a control variate, its closed-form part and per-texel

@@ -63,7 +63,8 @@ Parameters:
                      when no input carries gradients (maps, patterns, control variate): no
                      tracing, no kernel assembly (docs/benchmarks/cv_cost.md). With gradients, or
                      false, every call traces its kernels. An integrator keeps the recordings of
-                     its last FROZEN_RECORDINGS configurations. Limitation: the scene is an input
+                     its last FROZEN_RECORDINGS configurations; where Dr.Jit fails to record or
+                     replay, it warns and traces from then on. Limitation: the scene is an input
                      of the frozen function, and Mitsuba brings every emitter, shape and sensor
                      of every scene loaded in the process with it; a process that renders through
                      several scenes in turn records again whenever another scene rendered since
@@ -94,6 +95,8 @@ variate residual).
 """
 
 from __future__ import annotations
+
+import warnings
 
 import drjit as dr
 import mitsuba as mi
@@ -815,9 +818,17 @@ class ImportanceIntegrator(mi.SamplingIntegrator):
             raise ValueError(f"importance integrator: {lcd.pattern_count} patterns do not split into {batch} materials")
         shape = self._sample_shape(scene)
         if self.freeze and not self._carries_gradients(shape.bsdf(), lcd, control):
-            seed = mi.UInt32(seed)  # a Python int would be part of the key: a recording per seed
-            # The sizes are part of the key: recorded kernels keep the sizes they were traced with.
-            return self._replay(self, scene, (int(H), int(W)), int(spp), seed, int(batch), lcd.pattern_count, control)
+            try:
+                # The sizes are part of the key: recorded kernels keep the sizes they were traced
+                # with. A Python int seed would be too: a recording per seed.
+                return self._replay(self, scene, (int(H), int(W)), int(spp), mi.UInt32(seed), int(batch),
+                                    lcd.pattern_count, control)
+            except RuntimeError as e:
+                # A recording Dr.Jit cannot make or replay (e.g. on a backend the tests did not
+                # run): trace from now on. An error of the render itself recurs below.
+                warnings.warn(f"importance integrator: replaying recorded kernels failed ({e}); "
+                              "tracing every render instead (freeze off)", RuntimeWarning, stacklevel=2)
+                self.freeze = False
         return self._render_texels(scene, (H, W), spp, seed, batch, control)
 
     @staticmethod

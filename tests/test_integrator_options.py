@@ -382,6 +382,24 @@ def test_released_scenes_load_again_and_render_the_same(rigs):
     torch.testing.assert_close(ms.render(m, p, released, method="mitsuba", spp=2, seed=0), before, rtol=0, atol=0)
 
 
+def test_a_replay_that_fails_warns_and_traces_from_then_on(tmp_path, monkeypatch):
+    from mitsvbrdf.render.mitsuba import load_scene
+
+    rig = ms.Rig.from_scene(scene_with(tmp_path / "failing-replay.xml", OPTIONS["ltc-grid-window"]))
+    m, p = textured_material(8, seed=1), pt.random(n=2, seed=1)
+    want = ms.render(m, p, rig, method="mitsuba", spp=2, seed=0)
+    integrator = load_scene(str(rig.source), "llvm_ad_rgb")[3]
+
+    def failing(*args, **kwargs):
+        raise RuntimeError("record(): cannot record this")
+
+    monkeypatch.setattr(integrator, "_replay", failing)
+    with pytest.warns(RuntimeWarning, match="cannot record this"):
+        got = ms.render(m, p, rig, method="mitsuba", spp=2, seed=0)
+    torch.testing.assert_close(got, want, rtol=0, atol=0)
+    assert integrator.freeze is False
+
+
 def test_python_int_seeds_replay_the_recording(rigs, monkeypatch):
     from mitsvbrdf.render.mitsuba import load_scene
 

@@ -47,9 +47,8 @@ ESTIMATORS = {"plain": {"sampler": "independent", "control_variate": "none", "fr
               "ltc-grid-8-window-8": {"control_variate": "ltc-grid", "ltc_grid": 8, "ltc_cells_min_roughness": 0.2,
                                       "ltc_window": 8, "ltc_window_min_roughness": 0.02},
               DEFAULT: {"control_variate": "ltc-grid", "ltc_grid": 4, "ltc_cells_min_roughness": 0.2,
-                        "ltc_window": 8, "ltc_window_min_roughness": 0.02},
-              f"{DEFAULT}-traced": {"control_variate": "ltc-grid", "ltc_grid": 4, "ltc_cells_min_roughness": 0.2,
-                                    "ltc_window": 8, "ltc_window_min_roughness": 0.02, "freeze": False}}
+                        "ltc_window": 8, "ltc_window_min_roughness": 0.02}}
+ESTIMATORS[f"{DEFAULT}-traced"] = {**ESTIMATORS[DEFAULT], "freeze": False}
 for _options in ESTIMATORS.values():
     _options.setdefault("freeze", True)
 

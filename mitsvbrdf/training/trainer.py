@@ -39,6 +39,7 @@ from ..scene_xml import write_integrator_options
 from ..sensor import SensorNoise
 from ..svbrdf import SVBRDF
 from .config import Config, config_table
+from .loss_plot import write_loss_plot
 from .stages import STAGES, RenderSettings, TrainingStage
 
 
@@ -322,23 +323,7 @@ class Trainer:
             w = csv.DictWriter(f, fieldnames=keys)
             w.writeheader()
             w.writerows(self.history)
-        import matplotlib
-
-        matplotlib.use("Agg")
-        import matplotlib.pyplot as plt
-
-        fig, ax = plt.subplots(figsize=(6, 3.5))
-        steps = [h["step"] for h in self.history]
-        for k in keys:
-            if k not in ("step", "lr", "it_per_s", "seconds"):
-                ax.plot(steps, [h.get(k, math.nan) for h in self.history], label=k)
-        ax.set_xlabel("step")
-        ax.set_yscale("log")
-        ax.set_title(f"{self.cfg.stage}: {self.cfg.out}")
-        ax.legend(fontsize=7)
-        fig.tight_layout()
-        fig.savefig(self.out / "loss.png", dpi=100)
-        plt.close(fig)
+        write_loss_plot(self.history, self.out / "loss.png", f"{self.cfg.stage}: {self.cfg.out}")
 
     # -- the loop ---------------------------------------------------------------------------
     def batch(self, step: int):

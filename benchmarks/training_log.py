@@ -3,7 +3,8 @@
     .venv/bin/python benchmarks/training_log.py runs/init-small runs/stage1-small ...
 
 Prints, per run, the mean of each loss term over the first and the last 10% of the logged steps,
-and copies each run's metrics.csv and loss.png to docs/benchmarks/training_runs/<run>/; writes
+copies each run's metrics.csv and config.json to docs/benchmarks/training_runs/<run>/ and draws its
+loss.png there from metrics.csv (mitsvbrdf.training.loss_plot: raw and running mean); writes
 docs/benchmarks/training_log.md (+ CSV).
 """
 
@@ -14,10 +15,10 @@ import csv
 import shutil
 from pathlib import Path
 
+from mitsvbrdf.training.loss_plot import NOT_LOSSES, write_loss_plot
 from report import write_report
 
 ROOT = Path(__file__).resolve().parent.parent
-SKIP = {"step", "lr", "it_per_s", "seconds"}
 
 
 def main() -> None:
@@ -35,7 +36,7 @@ def main() -> None:
             hist = list(csv.DictReader(f))
         k = max(1, len(hist) // 10)
         for key in hist[0]:
-            if key in SKIP:
+            if key in NOT_LOSSES:
                 continue
             first = sum(float(h[key]) for h in hist[:k]) / k
             last = sum(float(h[key]) for h in hist[-k:]) / k
@@ -43,16 +44,17 @@ def main() -> None:
                          "last_10pct": round(last, 5), "ratio": round(last / first, 3) if first else float("nan")})
         dest = args.out / "training_runs" / run.name
         dest.mkdir(parents=True, exist_ok=True)
-        for name in ("metrics.csv", "loss.png", "config.json"):
+        for name in ("metrics.csv", "config.json"):
             src, dst = run / name, dest / name
             if src.exists() and not (dst.exists() and dst.samefile(src)):  # re-run on the copies: kept
                 shutil.copy(src, dst)
+        write_loss_plot(hist, dest / "loss.png", run.name)
     # run folders by name only: where they lay on the machine that trained them is not the point
     about = f"{args.about} " if args.about else ""
     text = ("Command: `python benchmarks/training_log.py " + " ".join(f".../{r.name}" for r in runs)
             + (f" --about '{args.about}'" if args.about else "") + "`\n\n" + about +
             "Mean of each logged loss term over the first and the last 10% of the logged steps "
-            "(each run's metrics.csv and loss.png are copied to training_runs/).\n\n"
+            "(each run's metrics.csv is copied to training_runs/, beside its loss curves, loss.png).\n\n"
             "| run | term | steps | first 10% | last 10% | last / first |\n|---|---|---:|---:|---:|---:|\n" +
             "\n".join(f"| {r['run']} | {r['term']} | {r['steps']} | {r['first_10pct']} | {r['last_10pct']} | "
                       f"{r['ratio']} |" for r in rows) + "\n")

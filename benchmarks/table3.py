@@ -25,15 +25,13 @@ from __future__ import annotations
 
 import argparse
 import csv
-import os
 import subprocess
 import sys
-import time
-from dataclasses import dataclass, field
 from pathlib import Path
 
 from mitsvbrdf.evaluation import paired_difference
 from report import SAMPLES
+from run_queue import Run, train_all
 
 ROOT = Path(__file__).resolve().parent.parent
 
@@ -68,17 +66,6 @@ SCALES = {"small": dict(suffix="-small", size=32, spp=16, n=16, overrides={}),
           "full": dict(suffix="", size=256, spp=64, n=64, overrides={})}
 
 
-@dataclass
-class Run:
-    """One training run of the study: its config, overrides, output folder and the run it starts from."""
-
-    name: str
-    config: Path
-    out: Path
-    parent: str | None
-    overrides: list[str] = field(default_factory=list)
-
-
 def plan(scale: str, steps_scale: float) -> dict[str, Run]:
     """The runs of :data:`RUNS` at a scale of :data:`SCALES`. ``steps_scale`` multiplies every run's
     steps (budgets stay equal: every G_sc budget scales alike) and tags the output folders
@@ -105,52 +92,6 @@ def plan(scale: str, steps_scale: float) -> dict[str, Run]:
                               f"train.checkpoint_every={max(1, min(cfg.train.checkpoint_every, steps))}"]
         runs[run.out.name] = run
     return runs
-
-
-def train_all(runs: dict[str, Run], python: str, jobs: int = 1) -> None:
-    """Train every unfinished run, up to ``jobs`` at once, each after the run it starts from. With
-    more than one job each run's output goes to ``<out>/train.log``."""
-    done = {k for k, r in runs.items() if (r.out / "networks.pt").exists()}
-    for k in sorted(done):
-        print(f"[table3] {k}: done, kept")
-    todo = [k for k in runs if k not in done]
-    active: dict[str, tuple[subprocess.Popen, float]] = {}
-    while todo or active:
-        for k in list(todo):
-            if len(active) >= jobs:
-                break
-            r = runs[k]
-            if r.parent and r.parent not in done:
-                continue
-            cmd = [python, "-m", "mitsvbrdf", "train", str(r.config), "--quiet"]
-            cmd += [a for o in r.overrides for a in ("--set", o)]
-            if (r.out / "checkpoint.pt").exists():
-                cmd.append("--resume")
-            print(f"[table3] start {k}: {' '.join(cmd[1:])}", flush=True)
-            log, env = None, None
-            if jobs > 1:
-                r.out.mkdir(parents=True, exist_ok=True)
-                log = open(r.out / "train.log", "a")
-                # OpenMP threads spin while they wait: more threads than cores across the jobs
-                # slowed two CPU runs side by side ten-fold, so the jobs share the cores
-                env = {**os.environ, "OMP_NUM_THREADS": str(max(1, (os.cpu_count() or 1) // jobs))}
-            active[k] = (subprocess.Popen(cmd, cwd=ROOT, stdout=log, stderr=subprocess.STDOUT if log else None,
-                                          env=env), time.perf_counter())
-            todo.remove(k)
-        if not active:
-            raise RuntimeError(f"runs {todo} wait for runs that are neither done nor planned")
-        time.sleep(1)
-        for k, (proc, t0) in list(active.items()):
-            if proc.poll() is None:
-                continue
-            del active[k]
-            if proc.returncode != 0:
-                for other, _ in active.values():
-                    other.terminate()  # they checkpoint; a rerun resumes them
-                raise RuntimeError(f"run {k} failed (exit {proc.returncode}); see its output"
-                                   + (f" in {runs[k].out / 'train.log'}" if jobs > 1 else ""))
-            done.add(k)
-            print(f"[table3] {k}: {time.perf_counter() - t0:.0f} s", flush=True)
 
 
 def evaluate(runs: dict[str, Run], data: str, out: Path, size: int, spp: int, n: int, python: str) -> list[dict]:
@@ -204,7 +145,7 @@ def main() -> None:
         ap.error("--steps-scale must be positive and --jobs at least 1")
     runs = plan(args.scale, args.steps_scale)
     if not args.eval_only:
-        train_all(runs, python, args.jobs)
+        train_all(runs, python, args.jobs, tag="table3")
     if args.train_only:
         return
     tag = "" if args.steps_scale == 1 else f"-x{args.steps_scale:g}"

@@ -156,20 +156,26 @@ def test_changing_the_budget_in_the_bases_changes_every_baseline_and_adaptive_ch
 # ---- benchmarks/table3.py's "medium" scale: the CPU configs at the shipped weights' recipe ------
 
 
-def table3_plan(scale: str):
-    """benchmarks/table3.py's runs at ``scale``: the configs as each run loads them, by run name."""
+def benchmark_module(name: str):
+    """The script benchmarks/<name>.py as a module (its sibling modules importable while it loads)."""
     import importlib.util
     import sys
 
-    sys.path.insert(0, str(ROOT / "benchmarks"))  # table3 imports its sibling report.py
+    sys.path.insert(0, str(ROOT / "benchmarks"))  # the scripts import their siblings (report.py, ...)
     try:
-        spec = importlib.util.spec_from_file_location("table3", ROOT / "benchmarks" / "table3.py")
-        table3 = importlib.util.module_from_spec(spec)
-        sys.modules["table3"] = table3  # its dataclass looks its module up there
-        spec.loader.exec_module(table3)
+        spec = importlib.util.spec_from_file_location(name, ROOT / "benchmarks" / f"{name}.py")
+        module = importlib.util.module_from_spec(spec)
+        sys.modules[name] = module  # a dataclass looks its module up there
+        spec.loader.exec_module(module)
     finally:
         sys.path.remove(str(ROOT / "benchmarks"))
-        sys.modules.pop("table3", None)
+        sys.modules.pop(name, None)
+    return module
+
+
+def table3_plan(scale: str):
+    """benchmarks/table3.py's runs at ``scale``: the configs as each run loads them, by run name."""
+    table3 = benchmark_module("table3")
     return table3, {r.name: load_config(r.config, r.overrides) for r in table3.plan(scale, 1.0).values()}
 
 
@@ -203,3 +209,4 @@ def test_table3_medium_runs_start_from_medium_runs_only():
     runs = table3.plan("medium", 1.0)
     assert all(k.endswith("-medium") for k in runs)
     assert all(r.parent in runs for r in runs.values() if r.parent)
+

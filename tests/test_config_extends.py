@@ -210,3 +210,41 @@ def test_table3_medium_runs_start_from_medium_runs_only():
     assert all(k.endswith("-medium") for k in runs)
     assert all(r.parent in runs for r in runs.values() if r.parent)
 
+
+# ---- benchmarks/gsc_sample_efficiency.py: G_sc arms that differ in their own settings only ------
+
+
+def gsc_arms(tmp_path):
+    study = benchmark_module("gsc_sample_efficiency")
+    runs = study.plan(list(study.ARMS), 6000, tmp_path)
+    return study, {a: load_config(r.config, r.overrides) for a, r in runs.items()}
+
+
+def test_gsc_sample_efficiency_arms_differ_only_in_learning_rate_map_weights_and_clipping(tmp_path):
+    import dataclasses
+
+    _, cfgs = gsc_arms(tmp_path)
+
+    def rest(c):
+        d = dataclasses.asdict(c)
+        d.pop("out")
+        d["train"].pop("lr")
+        d["loss"].pop("map_weights")
+        d["train"].pop("grad_clip")
+        return d
+
+    first, *others = cfgs.values()
+    assert all(rest(c) == rest(first) for c in others)
+    recipe = (5.0, 1.0, 1.0, 1.0)
+    assert {a: (c.train.lr, tuple(c.loss.map_weights), c.train.grad_clip) for a, c in cfgs.items()} == {
+        "lr1e-3": (1e-3, recipe, 1.0), "lr2e-3": (2e-3, recipe, 1.0), "lr4e-3": (4e-3, recipe, 1.0),
+        "lr5e-4": (5e-4, recipe, 1.0), "rough3": (1e-3, (5.0, 1.0, 3.0, 1.0), 1.0),
+        "plain": (1e-3, (1.0, 1.0, 1.0, 1.0), 1.0), "noclip": (1e-3, recipe, 0.0)}
+
+
+def test_gsc_sample_efficiency_trains_the_shipped_g_sc_for_the_steps_asked(tmp_path):
+    _, cfgs = gsc_arms(tmp_path)
+    c = cfgs["lr1e-3"]
+    assert (c.stage, c.data.size, c.render.spp, c.model.svbrdf_width, c.model.diffuse_ratio) == ("fixed", 64, 4, 16, True)
+    assert (c.train.steps, list(c.data.bump), c.data.dark_metals) == (6000, [1.0, 8.0], 0.5)
+    assert {str(c.out) for c in cfgs.values()} == {str(tmp_path / a) for a in cfgs}

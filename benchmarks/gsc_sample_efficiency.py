@@ -165,8 +165,8 @@ def main() -> None:
             "|---:|---|---:|---:|---:|---:|---:|---:|\n" + "\n".join(table) + "\n\n"
             "Seconds of training per arm (with the arms side by side, sharing the cores): "
             + ", ".join(f"{a} {training_seconds(r):.0f}" for a, r in runs.items()) + ".\n\n"
-            "Running mean of each arm's training loss (the weighted map loss; `rough3`'s weights differ, so its "
-            f"curve is on another scale):\n\n![loss]({stem}.png)\n")
+            "Running mean of each arm's training loss (the weighted map loss; `rough3`'s and `plain`'s weights "
+            f"differ, so their curves are on other scales):\n\n![loss]({stem}.png)\n")
     write_report(out, stem, "G_sc sample efficiency: learning rate, map weights and clipping at equal steps",
                  "gsc_sample_efficiency.py", text, csv_rows)
     print(text)

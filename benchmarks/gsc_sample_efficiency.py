@@ -151,6 +151,7 @@ def main() -> None:
             table.append(f"| {size} | {a} | " + " | ".join(cells) + f" | {lower} |")
     out.mkdir(parents=True, exist_ok=True)
     loss_figure(runs, out / f"{stem}.png")
+    reweighted = [a for a in arms if any(o.startswith("loss.map_weights") for o in ARMS[a])]
     arms_text = "; ".join(f"`{a}`: {', '.join(f'`{o}`' for o in ARMS[a])}" for a in arms)
     text = (f"Command: `benchmarks/gsc_sample_efficiency.py --steps {args.steps} --n {args.n} --spp {args.spp} "
             f"--arms {','.join(arms)}" + (f" --name {args.name}" if args.name else "") + "`\n\n"
@@ -165,8 +166,9 @@ def main() -> None:
             "|---:|---|---:|---:|---:|---:|---:|---:|\n" + "\n".join(table) + "\n\n"
             "Seconds of training per arm (with the arms side by side, sharing the cores): "
             + ", ".join(f"{a} {training_seconds(r):.0f}" for a, r in runs.items()) + ".\n\n"
-            "Running mean of each arm's training loss (the weighted map loss; `rough3`'s and `plain`'s weights "
-            f"differ, so their curves are on other scales):\n\n![loss]({stem}.png)\n")
+            "Running mean of each arm's training loss (the weighted map loss" + (
+                f"; {' and '.join(f'`{a}`' for a in reweighted)}: other map weights, so another scale"
+                if reweighted else "") + f"):\n\n![loss]({stem}.png)\n")
     write_report(out, stem, "G_sc sample efficiency: learning rate, map weights and clipping at equal steps",
                  "gsc_sample_efficiency.py", text, csv_rows)
     print(text)

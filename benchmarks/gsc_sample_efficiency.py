@@ -29,8 +29,8 @@ held-out procedural materials at 32 spp, each arm a ``--baseline`` beside the sh
 (the required ``--model``, a row for scale). Printed and written to
 ``docs/benchmarks/gsc_sample_efficiency[_<name>].{md,csv}``: every arm's map RMSE, its paired difference
 from the reference arm (mean +- standard error over the materials), and a figure of the running
-mean of each arm's training loss (the ``.png`` of the same name; a weighted arm's loss is on its
-own scale and is drawn unweighted only in the scores).
+mean of each arm's training loss (the ``.png`` of the same name; an arm with other map weights
+has its loss on another scale there, while the scores are unweighted RMSE).
 
     python benchmarks/gsc_sample_efficiency.py [--steps 6000] [--jobs 4] [--n 32] [--arms lr1e-3,lr2e-3] [--name NAME]
 """
@@ -83,22 +83,20 @@ def evaluate(runs: dict[str, Run], size: int, n: int, spp: int, out: Path) -> li
         return list(csv.DictReader(f))
 
 
-def training_seconds(run: Run) -> float:
-    """Seconds of training of a finished run: the last row of its metrics.csv."""
+def metrics(run: Run) -> list[dict]:
+    """The rows of a finished run's metrics.csv (step, loss terms, lr, seconds of training)."""
     with open(run.out / "metrics.csv") as f:
-        return float(list(csv.DictReader(f))[-1]["seconds"])
+        return list(csv.DictReader(f))
 
 
-def loss_figure(runs: dict[str, Run], path: Path) -> None:
+def loss_figure(histories: dict[str, list[dict]], path: Path) -> None:
     """The running mean of each arm's logged reconstruction loss against its step, one line per arm."""
     import matplotlib
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 
     fig, ax = plt.subplots(figsize=(7, 4))
-    for a, r in runs.items():
-        with open(r.out / "metrics.csv") as f:
-            rows = list(csv.DictReader(f))
+    for a, rows in histories.items():
         steps = [int(row["step"]) for row in rows]
         loss = [float(row["reconstruction"]) for row in rows]
         ax.plot(steps, running_mean(loss, smoothing_window(len(loss))), label=a)
@@ -150,7 +148,8 @@ def main() -> None:
             lower = f"{len(mine) - diffs['rmse_average'].a_lower}/{len(mine)}" if diffs else ""
             table.append(f"| {size} | {a} | " + " | ".join(cells) + f" | {lower} |")
     out.mkdir(parents=True, exist_ok=True)
-    loss_figure(runs, out / f"{stem}.png")
+    histories = {a: metrics(r) for a, r in runs.items()}
+    loss_figure(histories, out / f"{stem}.png")
     reweighted = [a for a in arms if any(o.startswith("loss.map_weights") for o in ARMS[a])]
     arms_text = "; ".join(f"`{a}`: {', '.join(f'`{o}`' for o in ARMS[a])}" for a in arms)
     text = (f"Command: `benchmarks/gsc_sample_efficiency.py --steps {args.steps} --n {args.n} --spp {args.spp} "
@@ -165,7 +164,7 @@ def main() -> None:
             "| px | arm | normal | diffuse | roughness | specular | average | lower |\n"
             "|---:|---|---:|---:|---:|---:|---:|---:|\n" + "\n".join(table) + "\n\n"
             "Seconds of training per arm (with the arms side by side, sharing the cores): "
-            + ", ".join(f"{a} {training_seconds(r):.0f}" for a, r in runs.items()) + ".\n\n"
+            + ", ".join(f"{a} {float(h[-1]['seconds']):.0f}" for a, h in histories.items()) + ".\n\n"
             "Running mean of each arm's training loss (the weighted map loss" + (
                 f"; {' and '.join(f'`{a}`' for a in reweighted)}: other map weights, so another scale"
                 if reweighted else "") + f"):\n\n![loss]({stem}.png)\n")

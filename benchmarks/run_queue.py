@@ -1,5 +1,5 @@
 """Training runs of a study, trained several at once: shared by the benchmark scripts that train
-(table3.py, gsc_steps.py).
+(table3.py, gsc_sample_efficiency.py).
 
 A :class:`Run` is one ``mitsvbrdf train`` invocation (config, ``--set`` overrides, output folder)
 and the run whose export it starts from, if any. :func:`train_all` trains every run that has no

@@ -217,13 +217,13 @@ def test_table3_medium_runs_start_from_medium_runs_only():
 def gsc_arms(tmp_path):
     study = benchmark_module("gsc_sample_efficiency")
     runs = study.plan(list(study.ARMS), 6000, tmp_path)
-    return study, {a: load_config(r.config, r.overrides) for a, r in runs.items()}
+    return {a: load_config(r.config, r.overrides) for a, r in runs.items()}
 
 
 def test_gsc_sample_efficiency_arms_differ_only_in_learning_rate_map_weights_and_clipping(tmp_path):
     import dataclasses
 
-    _, cfgs = gsc_arms(tmp_path)
+    cfgs = gsc_arms(tmp_path)
 
     def rest(c):
         d = dataclasses.asdict(c)
@@ -243,7 +243,7 @@ def test_gsc_sample_efficiency_arms_differ_only_in_learning_rate_map_weights_and
 
 
 def test_gsc_sample_efficiency_trains_the_shipped_g_sc_for_the_steps_asked(tmp_path):
-    _, cfgs = gsc_arms(tmp_path)
+    cfgs = gsc_arms(tmp_path)
     c = cfgs["lr1e-3"]
     assert (c.stage, c.data.size, c.render.spp, c.model.svbrdf_width, c.model.diffuse_ratio) == ("fixed", 64, 4, 16, True)
     assert (c.train.steps, list(c.data.bump), c.data.dark_metals) == (6000, [1.0, 8.0], 0.5)

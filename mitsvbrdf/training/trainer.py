@@ -4,7 +4,9 @@ One loop for every stage: Adam with cosine annealing, seeded; a progress bar wit
 it/s; ``metrics.csv`` and ``loss.png``; checkpoints every ``train.checkpoint_every`` steps, on
 SIGINT/SIGTERM (at the next step boundary) and at the end, written atomically; ``--resume``
 continues exactly where the checkpoint left off (same batches, same render seeds, same optimiser
-state, hence the same parameters as an uninterrupted run). At the end the stage's networks are
+state, hence the same parameters as an uninterrupted run, bit for bit where the render is: Dr.Jit's
+LLVM backend on several threads sums a render's gradient by atomic adds in thread order, so there
+the two can differ in the last bit). At the end the stage's networks are
 exported to ``OUT/networks.pt`` ({name: network record}, plus the acquisition settings under
 ``"acquisition"`` for stages whose networks acquire) for the next stage's ``[pretrained]``.
 

@@ -44,7 +44,7 @@ import sys
 import time
 from pathlib import Path
 
-from mitsvbrdf.evaluation import paired_difference
+from mitsvbrdf.evaluation import MAP_COLUMNS as MAPS, paired_difference
 from mitsvbrdf.training.loss_plot import running_mean, smoothing_window
 from report import write_report
 from run_queue import ROOT, Run, train_all
@@ -60,7 +60,6 @@ ARMS = {"lr1e-3": ["train.lr=1e-3"],
         "rough3": ["train.lr=1e-3", "loss.map_weights=[5.0, 1.0, 3.0, 1.0]"],
         "plain": ["train.lr=1e-3", "loss.map_weights=[1.0, 1.0, 1.0, 1.0]"],
         "noclip": ["train.lr=1e-3", "train.grad_clip=0"]}
-MAPS = ["rmse_normal", "rmse_diffuse", "rmse_roughness", "rmse_specular", "rmse_average"]
 SIZES = (64, 256)
 
 

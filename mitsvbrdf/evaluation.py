@@ -178,8 +178,8 @@ def evaluate(methods: dict[str, Method], materials: Iterable[SVBRDF], rig: Rig, 
     return rows
 
 
-SUMMARY_COLUMNS = ["rmse_normal", "rmse_diffuse", "rmse_roughness", "rmse_specular", "rmse_average",
-                   "rerender_rmse", "ssim"]
+MAP_COLUMNS = ["rmse_normal", "rmse_diffuse", "rmse_roughness", "rmse_specular", "rmse_average"]
+SUMMARY_COLUMNS = MAP_COLUMNS + ["rerender_rmse", "ssim"]
 
 
 def summarize(rows: list[dict]) -> list[dict]:
@@ -228,6 +228,22 @@ def paired_difference(rows: list[dict], a: str, b: str, key: str = "rmse_average
     return paired(*zip(*common))
 
 
+def paired_table(rows: list[dict], methods: list[str]) -> list[str]:
+    """Markdown lines: every map's paired per-material difference of ``methods[1:]`` against
+    ``methods[0]`` (rows as in metrics.csv), and on how many materials ``methods[0]`` has the lower
+    average. ValueError when a method shares no material with the first."""
+    ref = methods[0]
+    lines = [f"Paired per-material differences against {ref} (mean +- standard error; negative: "
+             f"lower than {ref}), and on how many materials {ref} is lower (average):", "",
+             "| Method | " + " | ".join(HEADS[c] for c in MAP_COLUMNS) + f" | {ref} lower |",
+             "|---|" + "---:|" * (len(MAP_COLUMNS) + 1)]
+    for m in methods[1:]:
+        d = {c: paired_difference(rows, ref, m, c) for c in MAP_COLUMNS}
+        lines.append(f"| {m} | " + " | ".join(str(d[c]) for c in MAP_COLUMNS) +
+                     f" | {d['rmse_average'].a_lower}/{d['rmse_average'].n} |")
+    return lines
+
+
 HEADS = {"rmse_normal": "Normal", "rmse_diffuse": "Diffuse", "rmse_roughness": "Roughness",
          "rmse_specular": "Specular", "rmse_average": "Average", "rerender_rmse": "Re-render RMSE",
          "ssim": "SSIM", "lpips": "LPIPS"}
@@ -257,15 +273,7 @@ def _write_tables(rows: list[dict], summary: list[dict], out: Path, lp_note: str
     lines += [f"| {s['method']} | " + " | ".join(f"{s[c]:.4f}" for c in cols) + " |" for s in summary]
     methods = [m["method"] for m in summary]
     if len(methods) > 1 and summary[0]["materials"] > 1:
-        maps = [c for c in cols if c.startswith("rmse_")]
-        lines += ["", f"Paired per-material differences against {methods[0]} (mean +- standard error; negative: "
-                  f"lower than {methods[0]}), and on how many materials {methods[0]} is lower (average):", "",
-                  "| Method | " + " | ".join(HEADS[c] for c in maps) + f" | {methods[0]} lower |",
-                  "|---|" + "---:|" * (len(maps) + 1)]
-        for m in methods[1:]:
-            d = {c: paired_difference(rows, methods[0], m, c) for c in maps}
-            lines.append(f"| {m} | " + " | ".join(str(d[c]) for c in maps) +
-                         f" | {d['rmse_average'].a_lower}/{d['rmse_average'].n} |")
+        lines += [""] + paired_table(rows, methods)
     note = f"\n\n{lp_note}." if lp_note else ""
     (out / "summary.md").write_text(_caption(summary, flat_normal) + "\n\n" + "\n".join(lines) + note + "\n")
 

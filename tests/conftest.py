@@ -2,7 +2,9 @@
 
 from __future__ import annotations
 
+import importlib.util
 import os
+import sys
 from pathlib import Path
 
 import pytest
@@ -18,6 +20,21 @@ SAMPLES = Path(os.environ.get("MITSVBRDF_SAMPLES", Path(__file__).resolve().pare
 needs_samples = pytest.mark.skipif(
     not (SAMPLES / "0_svbrdf.png").is_file(),
     reason=f"sample materials not found in {SAMPLES}: set MITSVBRDF_SAMPLES to the folder of *_svbrdf.png strips")
+
+
+def benchmark_module(name: str):
+    """The script benchmarks/<name>.py as a module (its sibling modules importable while it loads)."""
+    benchmarks = Path(__file__).resolve().parents[1] / "benchmarks"
+    sys.path.insert(0, str(benchmarks))  # the scripts import their siblings (report.py, ...)
+    try:
+        spec = importlib.util.spec_from_file_location(name, benchmarks / f"{name}.py")
+        module = importlib.util.module_from_spec(spec)
+        sys.modules[name] = module  # a dataclass looks its module up there
+        spec.loader.exec_module(module)
+    finally:
+        sys.path.remove(str(benchmarks))
+        sys.modules.pop(name, None)
+    return module
 
 
 @pytest.fixture(scope="module")

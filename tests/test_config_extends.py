@@ -8,6 +8,8 @@ import pytest
 from mitsvbrdf.training import ConfigError, load_config
 from mitsvbrdf.training.config import config_table, read_table
 
+from conftest import benchmark_module
+
 ROOT = Path(__file__).resolve().parents[1]
 BASELINES = ("monograd", "colorgrad", "picked", "pca", "optimized", "lpl", "flash")
 ADAPTIVE = ("", "-nospec", "-diffinit")
@@ -154,23 +156,6 @@ def test_changing_the_budget_in_the_bases_changes_every_baseline_and_adaptive_ch
 
 
 # ---- benchmarks/table3.py's "medium" scale: the CPU configs at the shipped weights' recipe ------
-
-
-def benchmark_module(name: str):
-    """The script benchmarks/<name>.py as a module (its sibling modules importable while it loads)."""
-    import importlib.util
-    import sys
-
-    sys.path.insert(0, str(ROOT / "benchmarks"))  # the scripts import their siblings (report.py, ...)
-    try:
-        spec = importlib.util.spec_from_file_location(name, ROOT / "benchmarks" / f"{name}.py")
-        module = importlib.util.module_from_spec(spec)
-        sys.modules[name] = module  # a dataclass looks its module up there
-        spec.loader.exec_module(module)
-    finally:
-        sys.path.remove(str(ROOT / "benchmarks"))
-        sys.modules.pop(name, None)
-    return module
 
 
 def table3_plan(scale: str):

@@ -70,9 +70,10 @@ def main() -> None:
     print(text, end="")
     if args.out:
         args.out.mkdir(parents=True, exist_ok=True)
-        (args.out / "summary.md").write_text(f"Command: `python benchmarks/paired_metrics.py .../{args.a.parent.name}/"
-                                             f"{args.a.name} .../{args.b.parent.name}/{args.b.name} --names "
-                                             f"{args.names}`\n\n{text}")
+        # a relative path as given; of an absolute one, no more than its folder: machines differ above it
+        shown = [str(p) if not p.is_absolute() else f".../{p.parent.name}/{p.name}" for p in (args.a, args.b)]
+        (args.out / "summary.md").write_text(f"Command: `python benchmarks/paired_metrics.py {shown[0]} {shown[1]} "
+                                             f"--names {args.names}`\n\n{text}")
 
 
 if __name__ == "__main__":

@@ -21,14 +21,15 @@ import argparse
 import csv
 from pathlib import Path
 
-from mitsvbrdf.evaluation import HEADS, MAP_COLUMNS, paired_table
+from mitsvbrdf.evaluation import HEADS, MAP_COLUMNS, paired_table, summarize
 
 
 def read_rows(path: Path, method: str, name: str) -> list[dict]:
-    """The rows of one metrics.csv scored for ``method``, relabelled ``name``. ValueError when the
-    file has none (a file of another method set, or an empty run)."""
+    """The rows of one metrics.csv scored for ``method``, relabelled ``name``, scores as numbers.
+    ValueError when the file has none (a file of another method set, or an empty run)."""
     with open(path, newline="") as f:
-        rows = [dict(r, method=name) for r in csv.DictReader(f) if r["method"] == method]
+        rows = [{k: float(v) for k, v in r.items() if k not in ("method", "material")}
+                | {"method": name, "material": r["material"]} for r in csv.DictReader(f) if r["method"] == method]
     if not rows:
         raise ValueError(f"{path} has no rows of method {method!r}")
     return rows
@@ -45,10 +46,7 @@ def compare(a: list[dict], b: list[dict], names: tuple[str, str]) -> str:
              + (f" ({left_out} scored by one only, left out)" if left_out else "") + ":", "",
              "| Evaluation | " + " | ".join(HEADS[c] for c in MAP_COLUMNS) + " |",
              "|---|" + "---:|" * len(MAP_COLUMNS)]
-    for name in names:
-        mine = [r for r in rows if r["method"] == name]
-        lines.append(f"| {name} | " + " | ".join(f"{sum(float(r[c]) for r in mine) / len(mine):.4f}"
-                                                for c in MAP_COLUMNS) + " |")
+    lines += [f"| {s['method']} | " + " | ".join(f"{s[c]:.4f}" for c in MAP_COLUMNS) + " |" for s in summarize(rows)]
     return "\n".join(lines + [""] + paired_table(rows, list(names))) + "\n"
 
 
